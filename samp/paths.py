@@ -1,0 +1,50 @@
+"""Where samp finds its configs and keeps its caches.
+
+`SAMP_CONF_DIR` and `SAMP_CACHE_DIR` override the defaults (the repository's `conf/` and
+`$XDG_CACHE_HOME/samp`, i.e. `~/.cache/samp`).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+__all__ = ["REPO_ROOT", "conf_dir", "cache_dir", "resolve_asset"]
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PYBULLET_DATA_SCHEME = "pybullet_data://"
+
+
+def conf_dir() -> Path:
+    """The Hydra config root (`conf/` beside the package unless `SAMP_CONF_DIR` is set)."""
+    path = Path(os.environ.get("SAMP_CONF_DIR", REPO_ROOT / "conf"))
+    if not path.is_dir():
+        raise FileNotFoundError(
+            f"samp's config folder {path} does not exist. Install samp from a clone "
+            "(`pip install -e .`) or point SAMP_CONF_DIR at a folder with samp's `conf/` layout."
+        )
+    return path
+
+
+def cache_dir(*parts: str) -> Path:
+    """A folder under samp's disk cache, created if missing."""
+    default = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "samp"
+    path = Path(os.environ.get("SAMP_CACHE_DIR", default)).joinpath(*parts)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def resolve_asset(ref: str, relative_to: Path | None = None) -> Path:
+    """Resolve an asset reference: `pybullet_data://sub/path`, an absolute path, or a path relative
+    to `relative_to` (the folder of the config that names it)."""
+    if ref.startswith(PYBULLET_DATA_SCHEME):
+        import pybullet_data
+
+        path = Path(pybullet_data.getDataPath()) / ref[len(PYBULLET_DATA_SCHEME):]
+    else:
+        path = Path(ref).expanduser()
+        if not path.is_absolute() and relative_to is not None:
+            path = relative_to / path
+    if not path.is_file():
+        raise FileNotFoundError(f"asset {ref!r} resolves to {path}, which is not a file")
+    return path.resolve()

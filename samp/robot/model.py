@@ -72,14 +72,19 @@ class Robot(nn.Module):
         self.register_buffer("home", torch.tensor(cfg.home, dtype=torch.float64))
         self._exact = _exact_chain_constants(self.chain, self.urdf)
         self.chain = self._set_chain(dtype=torch.float64, device=torch.device("cpu"))
-        self.register_buffer("_base_inv", torch.linalg.inv(self._fk_raw(self.home[None])[self.base_link][0]))
+        self._frame = {name: idx for idx, name in self.chain.idx_to_frame.items()}
+        base_pose = self._fk_raw(self.home[None])[self._frame[self.base_link], 0]
+        self._base_is_root = bool(torch.equal(base_pose, torch.eye(4, dtype=base_pose.dtype)))
+        self.register_buffer("_base_inv", torch.linalg.inv(base_pose))
 
         points, links, shells = self._robot_points()
         self.register_buffer("points", torch.from_numpy(points))
         self.register_buffer("point_links", torch.from_numpy(links).long())
         self.register_buffer("point_shells", torch.from_numpy(shells).long())
-        # Contiguous runs of points per link, for transform_points.
-        self._point_slices = [(int(li), slice(int(s), int(e))) for li, s, e in _runs(links)]
+        # Points are grouped by link: transform_points maps each link's contiguous run in one product.
+        starts = np.searchsorted(links, np.arange(len(self.point_link_names) + 1))
+        self._point_runs = [(li, slice(int(a), int(b))) for li, (a, b) in enumerate(zip(starts[:-1], starts[1:])) if b > a]
+        self.register_buffer("_point_frames", torch.tensor([self._frame[n] for n in self.point_link_names]))
 
     # ----------------------------------------------------------------- validation and assets
     def _validate_against_urdf(self) -> None:
@@ -133,8 +138,8 @@ class Robot(nn.Module):
             with np.load(path) as z:
                 return z["points"], z["links"], z["shells"]
         with torch.no_grad():
-            fk = self._fk_raw(self.home[None])
-        poses = {name: (self._base_inv @ fk[name][0]).numpy() for name in self.link_names}
+            fk = self._base_inv @ self._fk_raw(self.home[None])
+        poses = {name: fk[self._frame[name], 0].numpy() for name in self.link_names}
         points, links, shells = sample_shell_points(self.geometry, self.point_link_names, poses, cfg.points)
         tmp = path.with_suffix(".tmp.npz")
         np.savez(tmp, points=points, links=links, shells=shells)
@@ -188,22 +193,26 @@ class Robot(nn.Module):
         full = full.index_copy(1, self._arm_index, q)
         return full.index_copy(1, self._held_index, self._held_value.to(q.dtype).expand(q.shape[0], -1))
 
-    def _fk_raw(self, q: torch.Tensor) -> dict[str, torch.Tensor]:
-        return {k: v.get_matrix() for k, v in self.chain.forward_kinematics(self._full_q(q)).items()}
+    def _fk_raw(self, q: torch.Tensor) -> torch.Tensor:
+        """(B, n) -> (F, B, 4, 4) poses of all chain frames relative to the URDF root."""
+        return self.chain.forward_kinematics_tensor(self._full_q(q))
+
+    def _fk_base(self, q: torch.Tensor) -> torch.Tensor:
+        """(B, n) -> (F, B, 4, 4) poses of all chain frames in the base frame."""
+        self._check_q(q)
+        T = self._fk_raw(q)
+        return T if self._base_is_root else self._base_inv @ T
 
     def fk(self, q: torch.Tensor) -> dict[str, torch.Tensor]:
         """q (B, n) radians -> link name -> (B, 4, 4) pose in the base frame, for every URDF link."""
-        self._check_q(q)
-        return {k: self._base_inv @ T for k, T in self._fk_raw(q).items()}
+        T = self._fk_base(q)
+        return {name: T[idx] for name, idx in self._frame.items()}
 
     def transform_points(self, q: torch.Tensor) -> torch.Tensor:
         """q (B, n) -> (B, M, 3) robot points in the base frame, T_q(P); differentiable in q."""
-        fk = self.fk(q)
-        out = []
-        for li, sl in self._point_slices:
-            T = fk[self.point_link_names[li]]  # (B, 4, 4)
-            out.append(torch.einsum("bij,mj->bmi", T[:, :3, :3], self.points[sl]) + T[:, None, :3, 3])
-        return torch.cat(out, dim=1)
+        T = self._fk_base(q)[self._point_frames]  # (L, B, 4, 4)
+        return torch.cat([torch.einsum("bij,mj->bmi", T[li, :, :3, :3], self.points[run]) + T[li, :, None, :3, 3]
+                          for li, run in self._point_runs], dim=1)
 
     def extra_repr(self) -> str:
         return f"name={self.name}, dof={self.dof}, links={len(self.link_names)}, points={len(self.points)}"
@@ -229,10 +238,3 @@ def _exact_chain_constants(chain: pk.Chain, urdf: URDFModel) -> dict[str, torch.
         if joint.name in names:
             axes[names.index(joint.name)] = torch.from_numpy(joint.axis / np.linalg.norm(joint.axis))
     return {"static_offsets": statics, "axes": axes}
-
-
-def _runs(values: np.ndarray):
-    """(value, start, end) of each run of equal values in a 1-D array."""
-    edges = np.flatnonzero(np.diff(values)) + 1
-    starts, ends = np.r_[0, edges], np.r_[edges, len(values)]
-    return [(values[s], s, e) for s, e in zip(starts, ends)]

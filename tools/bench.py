@@ -1,0 +1,129 @@
+"""Benchmarks: `python tools/bench.py SUITE [--out FILE.json] [--device cpu|cuda]`.
+
+Each suite times samp against a baseline measured in the same run and reports ratios, prints a table
+and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites:
+
+    robot   FK and transform_points for B in {1, 50, 1024}; baseline: pybullet FK, one configuration at a time
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+SUITES: dict[str, Callable] = {}
+
+
+def suite(fn: Callable) -> Callable:
+    SUITES[fn.__name__] = fn
+    return fn
+
+
+def timeit(fn: Callable, device: torch.device, min_time: float = 0.2, repeats: int = 5) -> float:
+    """Median seconds per call: calls are batched until a batch lasts `min_time`, over `repeats` batches."""
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    fn(); sync()  # warm-up
+    n = 1
+    while True:
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        sync()
+        if (elapsed := time.perf_counter() - t0) >= min_time or n >= 1 << 16:
+            break
+        n *= 2
+    times = [elapsed / n]
+    for _ in range(repeats - 1):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        sync()
+        times.append((time.perf_counter() - t0) / n)
+    return statistics.median(times)
+
+
+def machine(device: torch.device) -> dict:
+    info = {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count(),
+            "torch": torch.__version__, "torch_threads": torch.get_num_threads(), "device": str(device)}
+    if device.type == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(device)
+    return info
+
+
+@suite
+def robot(args) -> tuple[dict, list[list]]:
+    import pybullet as pb
+
+    from samp.robot import load_robot
+
+    device = torch.device(args.device)
+    model = load_robot(args.robot, dtype=torch.float32).to(device)
+    lo, hi = model.joint_limits.T.cpu().numpy()
+    client = pb.connect(pb.DIRECT)
+    body = pb.loadURDF(str(model.urdf.path), useFixedBase=True, physicsClientId=client)
+    joint_index = {pb.getJointInfo(body, j, physicsClientId=client)[1].decode(): j
+                   for j in range(pb.getNumJoints(body, physicsClientId=client))}
+    arm = [joint_index[name] for name in model.joint_names]
+    all_links = list(range(pb.getNumJoints(body, physicsClientId=client)))
+
+    metrics, rows = {}, []
+    for B in args.batch:
+        q_np = np.random.default_rng(0).uniform(lo, hi, size=(B, model.dof))
+        q = torch.as_tensor(q_np, dtype=torch.float32, device=device)
+
+        def pybullet_fk():
+            for qi in q_np:
+                for j, v in zip(arm, qi):
+                    pb.resetJointState(body, j, v, physicsClientId=client)
+                pb.getLinkStates(body, all_links, computeForwardKinematics=True, physicsClientId=client)
+
+        with torch.no_grad():
+            t_pb = timeit(pybullet_fk, torch.device("cpu"))
+            t_fk = timeit(lambda: model.fk(q), device)
+            t_tp = timeit(lambda: model.transform_points(q), device)
+        metrics.update({f"B{B}/pybullet_fk_ms": 1e3 * t_pb, f"B{B}/fk_ms": 1e3 * t_fk,
+                        f"B{B}/transform_points_ms": 1e3 * t_tp, f"B{B}/fk_speedup": t_pb / t_fk,
+                        f"B{B}/transform_points_speedup": t_pb / t_tp})
+        rows.append([B, f"{1e3 * t_pb:.3f}", f"{1e3 * t_fk:.3f}", f"{t_pb / t_fk:.2f}x",
+                     f"{1e3 * t_tp:.3f}", f"{t_pb / t_tp:.2f}x"])
+    pb.disconnect(client)
+    header = ["B", "pybullet FK [ms]", "samp fk [ms]", "fk vs pybullet", "transform_points [ms]", "tp vs pybullet"]
+    return metrics, [header, *rows]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("suite", choices=sorted(SUITES))
+    ap.add_argument("--out", type=Path, help="write the JSON report here")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda")
+    ap.add_argument("--robot", default="panda")
+    ap.add_argument("--batch", type=int, nargs="+", default=[1, 50, 1024])
+    args = ap.parse_args(argv)
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
+        ap.error("--device cuda was asked for but torch sees no CUDA device")
+    metrics, table = SUITES[args.suite](args)
+    widths = [max(len(str(r[i])) for r in table) for i in range(len(table[0]))]
+    print(f"suite {args.suite} ({args.robot}, {args.device}); ratios are pybullet time / samp time")
+    for r in table:
+        print("  ".join(str(c).rjust(w) for c, w in zip(r, widths)))
+    report = {"suite": args.suite, "metrics": metrics, "machine": machine(torch.device(args.device)),
+              "config": {"robot": args.robot, "batch": args.batch}}
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(report, indent=2))
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

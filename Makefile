@@ -12,7 +12,8 @@ STAMP := $(VENV)/.samp-installed
 install: $(STAMP)
 
 # torch is installed first and only when missing: on a machine without an NVIDIA GPU we take a local
-# CPU wheel if pip's find-links has one, else the CPU index, so no CUDA packages are ever pulled there.
+# CPU wheel if pip's find-links has one (its dependencies come with the package install below), else
+# the CPU index, so no CUDA packages are ever pulled there.
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@if ! $(PY) -c "import torch" >/dev/null 2>&1; then \
@@ -21,8 +22,8 @@ $(STAMP): pyproject.toml
 	    $(PY) -m pip install "torch==$(TORCH_VERSION)"; \
 	  else \
 	    echo "No NVIDIA GPU: installing the CPU build of torch==$(TORCH_VERSION)"; \
-	    $(PY) -m pip install --no-index "torch==$(TORCH_VERSION)" 2>/dev/null || \
-	      $(PY) -m pip install "torch==$(TORCH_VERSION)" --index-url $(TORCH_CPU_INDEX); \
+	    $(PY) -m pip install -q --no-index --no-deps "torch==$(TORCH_VERSION)" 2>/dev/null || \
+	      $(PY) -m pip install "torch==$(TORCH_VERSION)" --index-url $(TORCH_CPU_INDEX) --extra-index-url https://pypi.org/simple; \
 	  fi; \
 	fi
 	$(PY) -m pip install -q -e ".[dev]"

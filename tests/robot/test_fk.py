@@ -77,3 +77,16 @@ def test_to_moves_chain_and_buffers(robots, dtype):
     assert err < tol, f"{dtype}: transform_points differs from float64 by {err:.2e}, expected < {tol}"
     robot.to(torch.float64)
     assert robot.dtype == torch.float64 and robot.chain.dtype == torch.float64
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_matches_cpu(robots):
+    robot = robots["panda"]
+    q = random_configurations(robot, 64, seed=5)
+    want = robot.transform_points(q)
+    from samp.robot import load_robot
+
+    gpu = load_robot("panda", dtype=torch.float64).to("cuda")
+    got = gpu.transform_points(q.cuda()).cpu()
+    assert torch.allclose(got, want, atol=1e-10), f"CUDA differs from CPU by {(got - want).abs().max():.2e}"

@@ -3,6 +3,9 @@
 pybullet's own URDF loader keeps only part of some multi-object OBJ files (for the xArm's V-HACD meshes
 it collided with one body of each link in a check against trimesh), so collision queries use bodies
 made from exactly the geometry that robot points and the robot SDF are built on.
+
+Distances here are exact: pybullet inflates every GEOM_MESH by a 1 mm collision margin (measured, see
+`MESH_MARGIN`), and `pair_distance` adds it back.
 """
 
 from __future__ import annotations
@@ -14,25 +17,40 @@ import pybullet as pb
 import torch
 from scipy.spatial.transform import Rotation
 
-__all__ = ["LinkBodies"]
+__all__ = ["LinkBodies", "MESH_MARGIN"]
+
+# pybullet models a GEOM_MESH (convex hull or concave triangle mesh) as the exact shape grown by a 1 mm
+# sphere (its collision margin), so getClosestPoints reports 1 mm less per mesh than the exact distance;
+# measured against exact polytope distances (NNLS) to 1e-6 m (see samp/sim/world.py for the full probe).
+MESH_MARGIN = 0.001
 
 
 class LinkBodies:
     """Static pybullet bodies for each collision link (one per convex part), posed by `set_q`.
 
-    Use as a context manager; the DIRECT client is closed on exit.
+    Args:
+        robot: the `Robot` whose `geometry` the bodies are made of.
+        client: a pybullet client to build in; by default a DIRECT client of its own, closed by `close`.
+
+    Attributes:
+        bodies: link name -> body ids of its convex parts.
+        part_bodies, part_links: (P,) body id and index into `robot.link_names` of every part, flattened.
+    Use as a context manager; a client it opened is closed on exit.
     """
 
-    def __init__(self, robot):
+    def __init__(self, robot, client: int | None = None):
         self.robot = robot
-        self.client = pb.connect(pb.DIRECT)
+        self._owns_client = client is None
+        self.client = pb.connect(pb.DIRECT) if client is None else client
         # createCollisionShapeArray takes no vertex lists, so each convex part is a body of its own.
-        self.bodies: dict[str, list[int]] = {
-            name: [pb.createMultiBody(0, pb.createCollisionShape(pb.GEOM_MESH, vertices=part.vertices.tolist(),
-                                                                 physicsClientId=self.client),
-                                      physicsClientId=self.client) for part in geom.parts]
-            for name, geom in robot.geometry.items()
-        }
+        self.bodies: dict[str, list[int]] = {name: [self._part_body(part) for part in robot.geometry[name].parts]
+                                             for name in robot.link_names}
+        self.part_bodies = [body for bodies in self.bodies.values() for body in bodies]
+        self.part_links = np.array([li for li, bodies in enumerate(self.bodies.values()) for _ in bodies])
+
+    def _part_body(self, part) -> int:
+        shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=part.vertices.tolist(), physicsClientId=self.client)
+        return pb.createMultiBody(0, shape, physicsClientId=self.client)
 
     def __enter__(self) -> "LinkBodies":
         return self
@@ -41,25 +59,34 @@ class LinkBodies:
         self.close()
 
     def close(self) -> None:
-        if self.client is not None and pb.isConnected(self.client):
+        if self._owns_client and self.client is not None and pb.isConnected(self.client):
             pb.disconnect(self.client)
         self.client = None
 
+    def link_poses(self, q) -> np.ndarray:
+        """q (B, n) radians -> (B, L, 4, 4) float64 base-frame poses of `robot.link_names`, one batched FK."""
+        with torch.no_grad():
+            fk = self.robot.fk(torch.as_tensor(np.asarray(q), dtype=self.robot.dtype, device=self.robot.device))
+            T = torch.stack([fk[name] for name in self.robot.link_names], dim=1)  # (B, L, 4, 4)
+        return T.double().cpu().numpy()
+
+    def set_poses(self, T: np.ndarray) -> None:
+        """Pose every part body from its link's pose, T (L, 4, 4) in `robot.link_names` order."""
+        quat = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # (L, 4) x, y, z, w as pybullet expects
+        pos, quat = T[:, :3, 3].tolist(), quat.tolist()
+        for body, li in zip(self.part_bodies, self.part_links):
+            pb.resetBasePositionAndOrientation(body, pos[li], quat[li], physicsClientId=self.client)
+
     def set_q(self, q: np.ndarray) -> None:
         """Pose every link body for one configuration q (n,) radians."""
-        with torch.no_grad():
-            fk = self.robot.fk(torch.as_tensor(np.asarray(q)[None], dtype=self.robot.dtype))
-        for name, bodies in self.bodies.items():
-            T = fk[name][0].double().numpy()
-            quat = Rotation.from_matrix(T[:3, :3]).as_quat()  # x, y, z, w as pybullet expects
-            for body in bodies:
-                pb.resetBasePositionAndOrientation(body, T[:3, 3].tolist(), quat.tolist(), physicsClientId=self.client)
+        self.set_poses(self.link_poses(np.asarray(q)[None])[0])
 
     def pair_distance(self, a: str, b: str, max_distance: float = 0.0) -> float:
-        """Signed distance between two link bodies (negative: penetrating), or inf beyond max_distance."""
-        return min((p[8] for ba in self.bodies[a] for bb in self.bodies[b]
-                    for p in pb.getClosestPoints(ba, bb, max_distance, physicsClientId=self.client)),
-                   default=float("inf"))
+        """Exact signed distance between two link bodies (negative: penetrating), or inf beyond max_distance."""
+        d = min((p[8] for ba in self.bodies[a] for bb in self.bodies[b]
+                 for p in pb.getClosestPoints(ba, bb, max_distance, physicsClientId=self.client)),
+                default=float("inf")) + 2 * MESH_MARGIN
+        return d if d <= max_distance else float("inf")
 
     def colliding_pairs(self, exclude=()) -> list[tuple[str, str]]:
         """Link pairs in contact at the current pose, except the excluded ones (order-free)."""

@@ -29,9 +29,10 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[dev]"
 	@touch $(STAMP)
 
-# The newest end-to-end path: the robot report (summary + Rerun recording of the Panda).
+# The newest end-to-end path: the robot report and a scene report (summaries + Rerun recordings).
 demo: install
 	$(PY) -m samp.robot show robot=panda out=runs/demo/robot_panda.rrd
+	$(PY) -m samp.scene show scene=tabletop seed=3 n_e=64 out=runs/demo/scene_tabletop.rrd
 
 test: install
 	$(PY) -m pytest -q

@@ -4,6 +4,9 @@ Each suite times samp against a baseline measured in the same run and reports ra
 and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites:
 
     robot   FK and transform_points for B in {1, 50, 1024}; baseline: pybullet FK, one configuration at a time
+    scene   anchor grids at n_e in {40, 100, 160} and World.in_collision on a 20-obstacle scene; baselines:
+            the same distances one point at a time (timed on a sample, scaled to the grid), and a pairwise
+            pybullet check of every link part against every obstacle without broadphase
 """
 
 from __future__ import annotations
@@ -101,6 +104,45 @@ def robot(args) -> tuple[dict, list[list]]:
     return metrics, [header, *rows]
 
 
+def _naive_point_sdf(scene, point) -> float:
+    """Signed distance at one point, one obstacle at a time in plain numpy: the per-point baseline."""
+    best = np.inf
+    for o in scene.all_obstacles:
+        T = o.pose.matrix()
+        p = T[:3, :3].T @ (point - T[:3, 3])
+        if o.kind == "box":
+            q = np.abs(p) - np.asarray(o.size) / 2
+            d = np.linalg.norm(np.maximum(q, 0)) + min(q.max(), 0)
+        elif o.kind == "cylinder":
+            q = np.array([np.hypot(p[0], p[1]) - o.radius, abs(p[2]) - o.height / 2])
+            d = np.linalg.norm(np.maximum(q, 0)) + min(q.max(), 0)
+        else:
+            d = np.linalg.norm(p) - o.radius
+        best = min(best, d)
+    return best
+
+
+@suite
+def scene(args) -> tuple[dict, list[list]]:
+    from samp.scene import anchor_points, generate_scene
+
+    scn = generate_scene("tabletop", seed=0, num_obstacles=[19, 19])  # 19 clutter + table = 20, + the target
+    sample = anchor_points(20, scn.bounds).reshape(-1, 3).numpy()[:2000]
+    t0 = time.perf_counter()
+    for p in sample:
+        _naive_point_sdf(scn, p)
+    per_point = (time.perf_counter() - t0) / len(sample)
+    metrics, rows = {"obstacles": len(scn.all_obstacles), "naive_sdf_us_per_point": 1e6 * per_point}, []
+    for n in args.anchors:
+        t = timeit(lambda: scn.anchor_grid(n, cache=False), torch.device("cpu"), min_time=0.0, repeats=3)
+        naive = per_point * n**3
+        metrics.update({f"grid{n}/s": t, f"grid{n}/naive_s": naive, f"grid{n}/speedup": naive / t})
+        rows.append([f"anchor_grid n_e={n}", f"{t:.3f} s", f"{naive:.1f} s (scaled)", f"{naive / t:.0f}x"])
+    world_metrics, world_rows = _bench_world(scn, args)
+    metrics.update(world_metrics)
+    return metrics, [["what", "samp", "baseline", "speedup"], *rows, *world_rows]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("suite", choices=sorted(SUITES))
@@ -108,16 +150,18 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="cpu or cuda")
     ap.add_argument("--robot", default="panda")
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 50, 1024])
+    ap.add_argument("--anchors", type=int, nargs="+", default=[40, 100, 160])
+    ap.add_argument("--configs", type=int, default=500, help="configurations for World.in_collision")
     args = ap.parse_args(argv)
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         ap.error("--device cuda was asked for but torch sees no CUDA device")
     metrics, table = SUITES[args.suite](args)
     widths = [max(len(str(r[i])) for r in table) for i in range(len(table[0]))]
-    print(f"suite {args.suite} ({args.robot}, {args.device}); ratios are pybullet time / samp time")
+    print(f"suite {args.suite} ({args.robot}, {args.device}); ratios are baseline time / samp time")
     for r in table:
         print("  ".join(str(c).rjust(w) for c, w in zip(r, widths)))
     report = {"suite": args.suite, "metrics": metrics, "machine": machine(torch.device(args.device)),
-              "config": {"robot": args.robot, "batch": args.batch}}
+              "config": {k: v for k, v in vars(args).items() if k not in ("out", "suite")}}
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(report, indent=2))

@@ -10,7 +10,6 @@ directly or through fixed joints only), touch at the home configuration, or touc
 from __future__ import annotations
 
 import argparse
-import itertools
 from collections import Counter
 
 import numpy as np

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from samp.cli import compose, output_path, run_command
+
 USAGE = "usage: python -m samp.robot show robot=NAME [out=FILE.rrd] [configs=N] [seed=S]"
 
 
@@ -59,19 +61,14 @@ def sample_free_configurations(robot, count: int, seed: int) -> torch.Tensor:
 
 def show(overrides: list[str]) -> Path:
     import rerun as rr
-    from hydra import compose, initialize_config_dir
 
-    from samp.paths import REPO_ROOT, conf_dir
     from samp.robot import load_robot
     from samp.viz import log_robot_meshes, log_robot_pose
 
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        cfg = compose(config_name="robot_show", overrides=overrides)
+    cfg = compose("robot_show", overrides)
     robot = load_robot(cfg.robot, dtype=torch.float64)
     print(summary(robot))
-    out = Path(cfg.out)
-    out = out if out.is_absolute() else REPO_ROOT / out
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = output_path(cfg.out)
     rec = rr.RecordingStream("samp_robot", recording_id=f"robot-{robot.name}")
     log_robot_meshes(rec, robot)
     for i, q in enumerate(sample_free_configurations(robot, int(cfg.configs), int(cfg.seed))):
@@ -83,19 +80,7 @@ def show(overrides: list[str]) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] != "show":
-        print(USAGE, file=sys.stderr)
-        return 2
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-
-    try:
-        show(argv[1:])
-    except (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return 0
+    return run_command(argv, USAGE, {"show": show})
 
 
 if __name__ == "__main__":

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from samp.cli import compose, output_path, run_command
+
 USAGE = "usage: python -m samp.scene show scene=NAME [seed=S] [n_e=N] [out=FILE.rrd]"
 
 
@@ -53,13 +55,10 @@ def summary(scene, grid: np.ndarray, slices: np.ndarray) -> str:
 
 
 def show(overrides: list[str]) -> Path:
-    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from samp.paths import REPO_ROOT, conf_dir
 
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        cfg = compose(config_name="scene_show", overrides=overrides)
+    cfg = compose("scene_show", overrides)
     # Drawing libraries only once the config is known to be good: a typo fails fast.
     import rerun as rr
 
@@ -71,9 +70,7 @@ def show(overrides: list[str]) -> Path:
     slices = slice_indices(scene, grid.shape[0])
     print(summary(scene, grid, slices))
     vmax = float(np.abs(grid).max()) if cfg.color_range is None else float(cfg.color_range)
-    out = Path(cfg.out)
-    out = out if out.is_absolute() else REPO_ROOT / out
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = output_path(cfg.out)
     rec = rr.RecordingStream("samp_scene", recording_id=f"scene-{scene.name}-{scene.content_hash()[:12]}")
     log_scene_obstacles(rec, scene)
     for axis in range(3):
@@ -88,19 +85,7 @@ def show(overrides: list[str]) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] != "show":
-        print(USAGE, file=sys.stderr)
-        return 2
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-
-    try:
-        show(argv[1:])
-    except (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return 0
+    return run_command(argv, USAGE, {"show": show})
 
 
 if __name__ == "__main__":

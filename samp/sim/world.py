@@ -2,7 +2,9 @@
 
 The robot is samp's own convex parts posed by samp's FK (`LinkBodies`), not pybullet's URDF loader, so
 the simulator collides exactly the geometry that robot points and the robot SDF are built on. Obstacles
-(the scene's obstacles and its target) are static bodies at their poses.
+(the scene's obstacles and its target) are static bodies at their poses: primitives as pybullet
+primitives, each closed body of a mesh obstacle as a convex hull when it is convex (or `convex_hull`
+is set) and as a static concave triangle mesh otherwise.
 
 A query takes q (B, n): one batched FK gives every link pose, a numpy broadphase compares the parts'
 axis-aligned boxes with the obstacles' (a lower bound on each pair's distance), and pybullet's
@@ -30,7 +32,7 @@ import torch
 import trimesh
 
 from samp.scene.model import Box, Cylinder, MeshObstacle, Obstacle, Scene, Sphere
-from samp.scene.sdf import obstacle_mesh
+from samp.scene.sdf import obstacle_parts
 from samp.sim.bodies import MESH_MARGIN, LinkBodies
 
 __all__ = ["World", "DEFAULT_MAX_DISTANCE", "LIMIT_TOLERANCE"]
@@ -41,42 +43,52 @@ LIMIT_TOLERANCE = 1e-6  # radians: a float32 round trip of a limit (~5e-8 rad) i
 
 @dataclass(frozen=True)
 class _Obstacle:
-    """One static obstacle body and what its pybullet distance needs to become exact."""
+    """One static pybullet body of an obstacle and what its distance needs to become exact."""
 
-    name: str
+    name: str  # the scene obstacle's name (a mesh obstacle of several bodies has one entry per body)
     body: int
     inflation: float  # pybullet's margin around this shape, added back to every distance
-    mesh: trimesh.Trimesh | None  # closed non-convex mesh: pybullet sees only its surface
+    mesh: trimesh.Trimesh | None  # a closed non-convex body, which pybullet sees only as its surface
     pose: np.ndarray  # (4, 4) obstacle frame -> base frame
 
 
-def _obstacle_shape(o: Obstacle, client: int) -> tuple[int, float, trimesh.Trimesh | None]:
-    """pybullet collision shape of one obstacle -> (shape id, inflation, closed concave mesh or None)."""
+def _mesh_shape(body: trimesh.Trimesh, convex: bool, client: int) -> int:
+    """A convex hull (vertices only), or a static concave triangle mesh."""
+    if convex:
+        return pb.createCollisionShape(pb.GEOM_MESH, vertices=body.vertices.tolist(), physicsClientId=client)
+    return pb.createCollisionShape(pb.GEOM_MESH, vertices=body.vertices.tolist(), indices=body.faces.ravel().tolist(),
+                                   flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=client)
+
+
+def _obstacle_shapes(o: Obstacle, client: int) -> list[tuple[int, float, trimesh.Trimesh | None]]:
+    """pybullet collision shapes of one obstacle: (shape id, inflation, closed concave body or None) each."""
     kw = dict(physicsClientId=client)
     if isinstance(o, Box):  # grown by the margin: see the module docstring
-        return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=(np.array(o.size) / 2 + MESH_MARGIN).tolist(), **kw), MESH_MARGIN, None
-    if isinstance(o, Cylinder):  # pybullet's cylinder is along local z, as ours
-        return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=o.radius + MESH_MARGIN,
-                                       height=o.height + 2 * MESH_MARGIN, **kw), MESH_MARGIN, None
+        half = np.asarray(o.size) / 2 + MESH_MARGIN
+        return [(pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half.tolist(), **kw), MESH_MARGIN, None)]
+    if isinstance(o, Cylinder):  # along local z, as ours; grown by the margin
+        return [(pb.createCollisionShape(pb.GEOM_CYLINDER, radius=o.radius + MESH_MARGIN,
+                                         height=o.height + 2 * MESH_MARGIN, **kw), MESH_MARGIN, None)]
     if isinstance(o, Sphere):  # pybullet's sphere is all margin: exact
-        return pb.createCollisionShape(pb.GEOM_SPHERE, radius=o.radius, **kw), 0.0, None
-    if isinstance(o, MeshObstacle):
-        mesh = obstacle_mesh(o)
-        if o.convex_hull or mesh.is_convex:
-            return pb.createCollisionShape(pb.GEOM_MESH, vertices=mesh.vertices.tolist(), **kw), MESH_MARGIN, None
-        shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=mesh.vertices.tolist(), indices=mesh.faces.ravel().tolist(),
-                                        flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, **kw)
-        return shape, MESH_MARGIN, mesh
+        return [(pb.createCollisionShape(pb.GEOM_SPHERE, radius=o.radius, **kw), 0.0, None)]
+    if isinstance(o, MeshObstacle):  # one body per closed part, as the scene SDF sees it
+        shapes = []
+        for part in obstacle_parts(o):
+            convex = o.convex_hull or part.is_convex
+            shapes.append((_mesh_shape(part, convex, client), MESH_MARGIN, None if convex else part))
+        return shapes
     raise TypeError(f"unknown obstacle type {type(o).__name__}; expected Box, Cylinder, Sphere or MeshObstacle")
 
 
-def _make_obstacle(o: Obstacle, client: int) -> _Obstacle:
-    shape, inflation, mesh = _obstacle_shape(o, client)
-    if shape < 0:
-        raise RuntimeError(f"pybullet could not build a collision shape for obstacle {o.name!r} ({o.kind})")
-    body = pb.createMultiBody(0, shape, basePosition=o.pose.position, baseOrientation=o.pose.quaternion,
-                              physicsClientId=client)
-    return _Obstacle(o.name, body, inflation, mesh, o.pose.matrix())
+def _make_obstacle(o: Obstacle, client: int) -> list[_Obstacle]:
+    bodies = []
+    for shape, inflation, mesh in _obstacle_shapes(o, client):
+        if shape < 0:
+            raise RuntimeError(f"pybullet could not build a collision shape for obstacle {o.name!r} ({o.kind})")
+        body = pb.createMultiBody(0, shape, basePosition=o.pose.position, baseOrientation=o.pose.quaternion,
+                                  physicsClientId=client)
+        bodies.append(_Obstacle(o.name, body, inflation, mesh, o.pose.matrix()))
+    return bodies
 
 
 def _box_gap(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray) -> np.ndarray:
@@ -102,7 +114,7 @@ class World:
         self.client: int | None = pb.connect(pb.DIRECT)
         try:
             self.links = LinkBodies(robot, client=self.client)
-            self.obstacles = [_make_obstacle(o, self.client) for o in scene.all_obstacles]
+            self.obstacles = [body for o in scene.all_obstacles for body in _make_obstacle(o, self.client)]
         except BaseException:
             self.close()
             raise
@@ -250,25 +262,23 @@ class World:
         return best
 
     def _distance(self, T: np.ndarray, part: int, k: int, limit: float) -> float:
-        """Exact signed distance between posed part `part` and obstacle k; inf if it exceeds `limit`
-        (for a part enclosed by a closed concave mesh: minus its distance to the surface)."""
+        """Exact signed distance between posed part `part` and obstacle k; inf if it exceeds `limit`."""
         o = self.obstacles[k]
-        correction = MESH_MARGIN + o.inflation
         points = pb.getClosestPoints(self.links.part_bodies[part], o.body, limit, physicsClientId=self.client)
-        d = min((p[8] for p in points), default=np.inf) + correction
-        if o.mesh is None or d < 0.0 or not self._enclosed(T, part, o):
-            return d if d <= limit else np.inf
-        # pybullet sees only the triangles of a concave mesh: a part inside it, clear of the surface,
-        # reads as free. Its signed distance is minus its distance to the surface (deeper than
-        # max_distance reads as -max_distance).
-        points = pb.getClosestPoints(self.links.part_bodies[part], o.body, self.max_distance, physicsClientId=self.client)
-        return -min(min((p[8] for p in points), default=self.max_distance) + correction, self.max_distance)
+        d = min((p[8] for p in points), default=np.inf) + MESH_MARGIN + o.inflation
+        if o.mesh is not None and d >= 0.0:
+            # pybullet sees only the triangles of a concave mesh: a part inside it, clear of the surface,
+            # reads as free. One vertex decides (no crossing was found); the reverse, the mesh inside
+            # the part, needs no test: its triangles then overlap the solid part and pybullet reports it.
+            local = self._part_vertices_in(T, part, o)  # (V, 3)
+            if o.mesh.contains(local[:1])[0]:
+                # Minus the depth of the part's deepest vertex, as the scene SDF measures it (trimesh:
+                # positive inside); a lower bound on the depth needed to separate them.
+                return -float(trimesh.proximity.signed_distance(o.mesh, local).max())
+        return d if d <= limit else np.inf
 
-    def _enclosed(self, T: np.ndarray, part: int, o: _Obstacle) -> bool:
-        """Whether part (posed by T (L, 4, 4)) lies inside the closed mesh o. Called only when pybullet found
-        no surface crossing, so one vertex decides. (The reverse, the mesh inside the part, needs no test:
-        its triangles then overlap the solid convex part and pybullet reports the penetration.)"""
+    def _part_vertices_in(self, T: np.ndarray, part: int, o: _Obstacle) -> np.ndarray:
+        """(V, 3) vertices of part `part`, posed by T (L, 4, 4), in the frame of obstacle o."""
         link_pose = T[self.links.part_links[part]]
-        vertex = link_pose[:3, :3] @ self._parts[part].vertices[0] + link_pose[:3, 3]  # base frame
-        local = (vertex - o.pose[:3, 3]) @ o.pose[:3, :3]  # obstacle frame
-        return bool(o.mesh.contains(local[None])[0])
+        world = self._parts[part].vertices @ link_pose[:3, :3].T + link_pose[:3, 3]  # (V, 3) base frame
+        return (world - o.pose[:3, 3]) @ o.pose[:3, :3]

@@ -122,6 +122,49 @@ def _naive_point_sdf(scene, point) -> float:
     return best
 
 
+def _naive_world_check(world, q: np.ndarray) -> np.ndarray:
+    """Collision of each configuration by brute force: every moving link part against every obstacle body."""
+    import pybullet as pb
+
+    from samp.sim.bodies import MESH_MARGIN
+
+    robot = world.robot
+    parts = [b for n in robot.link_names if n != robot.base_link for b in world.links.bodies[n]]
+    hits = []
+    for qi in q:
+        world.links.set_q(qi)
+        hit = False
+        for body in parts:
+            for o in world.obstacles:
+                pts = pb.getClosestPoints(body, o.body, 0.0, physicsClientId=world.client)
+                if pts and min(p[8] for p in pts) + MESH_MARGIN + o.inflation < 0:
+                    hit = True
+        hits.append(hit or bool(world.links.colliding_pairs(exclude=robot.self_collision_exclude)))
+    return np.array(hits)
+
+
+def _bench_world(scn, args) -> tuple[dict, list[list]]:
+    from samp.robot import load_robot
+    from samp.sim import World
+
+    robot = load_robot(args.robot, dtype=torch.float64)
+    lo, hi = robot.joint_limits.numpy().T
+    q = np.random.default_rng(1).uniform(lo, hi, size=(args.configs, robot.dof))
+    with World(robot, scn) as world:
+        t_world = timeit(lambda: world.in_collision(q), torch.device("cpu"), min_time=0.0, repeats=3)
+        t0 = time.perf_counter()
+        naive = _naive_world_check(world, q)
+        t_naive = time.perf_counter() - t0
+        hit = world.in_collision(q)
+    if not np.array_equal(hit, naive):
+        raise AssertionError(f"World.in_collision disagrees with the pairwise check on {(hit != naive).sum()} configs")
+    per, per_naive = t_world / len(q), t_naive / len(q)
+    metrics = {"world/in_collision_us": 1e6 * per, "world/naive_us": 1e6 * per_naive,
+               "world/speedup": per_naive / per, "world/colliding_fraction": float(hit.mean())}
+    return metrics, [[f"World.in_collision ({args.robot}, per config)", f"{1e6 * per:.0f} us",
+                      f"{1e6 * per_naive:.0f} us", f"{per_naive / per:.1f}x"]]
+
+
 @suite
 def scene(args) -> tuple[dict, list[list]]:
     from samp.scene import anchor_points, generate_scene

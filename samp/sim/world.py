@@ -39,6 +39,7 @@ __all__ = ["World", "DEFAULT_MAX_DISTANCE", "LIMIT_TOLERANCE"]
 
 DEFAULT_MAX_DISTANCE = 1.0  # metres: min_distance searches no farther and reports at most this
 LIMIT_TOLERANCE = 1e-6  # radians: a float32 round trip of a limit (~5e-8 rad) is not a violation
+SHELL = 0.02  # metres: first search radius beyond the box gap for a concave mesh
 
 
 @dataclass(frozen=True)
@@ -121,6 +122,7 @@ class World:
         boxes = np.array([pb.getAABB(o.body, physicsClientId=self.client) for o in self.obstacles]).reshape(-1, 2, 3)
         self._obstacle_lo, self._obstacle_hi = boxes[:, 0], boxes[:, 1]  # (K, 3) each, conservative
         self._parts = [part for name in robot.link_names for part in robot.geometry[name].parts]
+        self._vertices_t = [np.ascontiguousarray(part.vertices.T) for part in self._parts]  # (3, V) each
         base = robot.link_names.index(robot.base_link) if robot.base_link in robot.link_names else -1
         self._moving = np.flatnonzero(self.links.part_links != base)  # parts checked against obstacles
         self._self_pairs = self._allowed_part_pairs()  # (S, 2)
@@ -154,7 +156,8 @@ class World:
         return self.client is None
 
     # ----------------------------------------------------------------- queries
-    def in_collision(self, q, margin: float = 0.0, self_collision: bool = True, joint_limits: bool = True) -> np.ndarray:
+    def in_collision(self, q, margin: float = 0.0, self_collision: bool = True,
+                     joint_limits: bool = True) -> np.ndarray:
         """q (B, n) radians (torch or numpy) -> (B,) bool.
 
         True where a non-base link is closer than `margin` metres to an obstacle (margin 0: penetration),
@@ -167,19 +170,26 @@ class World:
         lo, hi = self._part_boxes(T)
         near = self._obstacle_gaps(lo, hi) <= margin  # (B, Pm, K) candidate part-obstacle pairs
         touch = (self._self_gaps(lo, hi) <= 0.0) & self_collision  # (B, S) candidate part-part pairs
-        for b in np.flatnonzero(~hit & (near.any(axis=(1, 2)) | touch.any(axis=1))):
-            self.links.set_poses(T[b])
+        todo = np.flatnonzero(~hit & (near.any(axis=(1, 2)) | touch.any(axis=1)))
+        pos, quat = self.links.pose_arrays(T[todo])  # (b, L, 3), (b, L, 4)
+        for j, b in enumerate(todo):
+            self.links.place(pos[j], quat[j])
             hit[b] = self._obstacle_hit(T[b], near[b], margin) or self._self_hit(touch[b])
         return hit
 
     def min_distance(self, q) -> np.ndarray:
-        """q (B, n) radians -> (B,) smallest signed distance (metres, negative: penetration) between the
-        robot's non-base links and any obstacle, at most `max_distance` (also with no obstacles)."""
+        """q (B, n) radians -> (B,) smallest signed distance in metres between the robot's non-base links
+        and any obstacle, exact to ~1e-5 m when positive and capped at `max_distance` (also the value
+        with no obstacles). Negative values are penetration depths: pybullet's for convex pairs and for
+        parts crossing a concave mesh's surface; minus the depth of the deepest vertex for a part that
+        lies wholly inside a closed concave mesh."""
         q = self._check_q(q)
         T = self.links.link_poses(q)
         lo, hi = self._part_boxes(T)
-        gaps = self._obstacle_gaps(lo, hi).reshape(len(q), -1)  # (B, Pm * K) lower bounds
-        return np.array([self._nearest(T[b], gaps[b]) for b in range(len(q))], dtype=np.float64).reshape(len(q))
+        gaps = self._obstacle_gaps(lo, hi).reshape(len(q), len(self._moving) * len(self.obstacles))  # (B, Pm * K)
+        pos, quat = self.links.pose_arrays(T)  # (B, L, 3), (B, L, 4)
+        return np.array([self._nearest(T[b], gaps[b], (pos[b], quat[b])) for b in range(len(q))],
+                        dtype=np.float64).reshape(len(q))
 
     def outside_limits(self, q) -> np.ndarray:
         """q (B, n) -> (B,) bool: some joint is outside its limits by more than LIMIT_TOLERANCE."""
@@ -203,7 +213,8 @@ class World:
             raise ValueError(f"q must have shape (B, {n}) for {self.robot.name}'s joints {self.robot.joint_names}, "
                              f"got {tuple(q.shape)}{hint}")
         if not np.all(np.isfinite(q)):
-            raise ValueError(f"q must be finite, got NaN or inf in configurations {np.flatnonzero(~np.isfinite(q).all(1)).tolist()}")
+            bad = np.flatnonzero(~np.isfinite(q).all(axis=1)).tolist()
+            raise ValueError(f"q must be finite, got NaN or inf in configurations {bad}")
         return q
 
     @staticmethod
@@ -217,9 +228,9 @@ class World:
         """T (B, L, 4, 4) -> the parts' exact world AABBs, lo and hi (B, P, 3)."""
         B, P = len(T), len(self._parts)
         lo, hi = np.empty((B, P, 3)), np.empty((B, P, 3))
-        for i, (part, li) in enumerate(zip(self._parts, self.links.part_links)):
-            world = np.einsum("bij,vj->bvi", T[:, li, :3, :3], part.vertices) + T[:, li, None, :3, 3]  # (B, V, 3)
-            lo[:, i], hi[:, i] = world.min(axis=1), world.max(axis=1)
+        for i, (vertices_t, li) in enumerate(zip(self._vertices_t, self.links.part_links)):
+            rotated = T[:, li, :3, :3] @ vertices_t  # (B, 3, V); matmul: einsum took 25x longer
+            lo[:, i], hi[:, i] = rotated.min(axis=2) + T[:, li, :3, 3], rotated.max(axis=2) + T[:, li, :3, 3]
         return lo, hi
 
     def _obstacle_gaps(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -247,19 +258,33 @@ class World:
                 return True
         return False
 
-    def _nearest(self, T: np.ndarray, gaps: np.ndarray) -> float:
-        """Branch and bound over one configuration's part-obstacle pairs, gaps (Pm * K,) lower bounds:
-        visit pairs by increasing gap and stop once the gap reaches the best distance found."""
+    def _nearest(self, T: np.ndarray, gaps: np.ndarray, placement: tuple[np.ndarray, np.ndarray]) -> float:
+        """Branch and bound over one configuration's part-obstacle pairs, gaps (Pm * K,): visit pairs by
+        increasing gap and stop at the first positive gap at least the best distance found. (A positive
+        gap bounds a pair's distance from below; overlapping boxes, gap 0, bound nothing, as the pair may
+        penetrate to any depth, so they are always visited.) T (L, 4, 4) and `placement` (positions
+        (L, 3), quaternions (L, 4)) pose the links; bodies are placed only if a pair needs pybullet."""
         best, posed, K = self.max_distance, False, len(self.obstacles)
         for flat in np.argsort(gaps, kind="stable"):
-            if gaps[flat] >= best:
+            if gaps[flat] > 0.0 and gaps[flat] >= best:
                 break
             if not posed:
-                self.links.set_poses(T)
+                self.links.place(*placement)
                 posed = True
             i, k = divmod(int(flat), K)
-            best = min(best, self._distance(T, self._moving[i], k, best))
+            best = min(best, self._search(T, self._moving[i], k, gaps[flat], max(best, 0.0)))
         return best
+
+    def _search(self, T: np.ndarray, part: int, k: int, gap: float, limit: float) -> float:
+        """`_distance` within `limit`, for a concave mesh in growing shells from the box gap: pybullet
+        returns a point for every triangle within the limit (on the test bunny this saves 40% of the time)."""
+        if self.obstacles[k].mesh is not None:
+            reach = gap + SHELL
+            while reach < limit:
+                if (d := self._distance(T, part, k, reach)) < np.inf:
+                    return d
+                reach *= 4
+        return self._distance(T, part, k, limit)
 
     def _distance(self, T: np.ndarray, part: int, k: int, limit: float) -> float:
         """Exact signed distance between posed part `part` and obstacle k; inf if it exceeds `limit`."""

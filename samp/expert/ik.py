@@ -1,0 +1,136 @@
+"""Batched damped-least-squares inverse kinematics on `Robot.fk`, in torch.
+
+Every target pose gets `seeds` random initial configurations, all solved in parallel for a fixed number
+of iterations: dq = J^T (J J^T + lambda^2 I)^-1 e (Wampler 1986; Buss, "Introduction to inverse
+kinematics with Jacobian transpose, pseudoinverse and damped least squares methods", 2004), with the
+step capped at `max_step` per joint and q clamped to the joint limits after each step; joints at a
+limit that the step would push beyond it are locked for that step. J is the
+geometric Jacobian built from the joint axes and origins that FK gives (one FK per iteration, no
+autograd). The orientation error is 1/2 sum_i r_i x r*_i over the columns of the current and target
+rotations (Siciliano et al., "Robotics", eq. 3.85): the rotation vector for small errors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from samp.expert.config import IKConfig
+
+RESTART_ERROR = 0.02  # a seed whose pose error (metres + radians, 6D norm) is above this at a restart is redrawn
+
+__all__ = ["IKResult", "rotation_angle", "solve_ik", "pose_errors", "geometric_jacobian"]
+
+
+@dataclass
+class IKResult:
+    """Solutions for K target poses with S seeds each."""
+
+    q: torch.Tensor  # (K, S, n) radians, within the joint limits
+    position_error: torch.Tensor  # (K, S) metres
+    rotation_error: torch.Tensor  # (K, S) radians
+    converged: torch.Tensor  # (K, S) bool, within the configured tolerances
+
+
+def rotation_angle(Ra: torch.Tensor, Rb: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotations -> (...) angle of Ra^T Rb in radians, in [0, pi]."""
+    trace = torch.einsum("...ij,...ij->...", Ra, Rb)  # trace(Ra^T Rb)
+    return torch.acos(((trace - 1) / 2).clamp(-1.0, 1.0))
+
+
+def pose_errors(T: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """T, target (..., 4, 4) -> position error (...) metres and rotation error (...) radians."""
+    return (T[..., :3, 3] - target[..., :3, 3]).norm(dim=-1), rotation_angle(T[..., :3, :3], target[..., :3, :3])
+
+
+def _joint_axes(robot) -> tuple[list[str], torch.Tensor, torch.Tensor]:
+    """The arm joints' child links, their axes in the child frame (n, 3) and a revolute mask (n,)."""
+    children, axes, revolute = [], [], []
+    for name in robot.joint_names:
+        joint = robot.urdf.joints[name]
+        if joint.type not in ("revolute", "continuous", "prismatic"):
+            raise ValueError(f"IK supports revolute and prismatic joints; {robot.name}'s {name!r} is {joint.type!r}")
+        children.append(joint.child)
+        axes.append(torch.as_tensor(joint.axis / (joint.axis ** 2).sum() ** 0.5))
+        revolute.append(joint.type != "prismatic")
+    return children, torch.stack(axes).to(robot.dtype), torch.tensor(revolute)
+
+
+def geometric_jacobian(robot, q: torch.Tensor, joints=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """q (B, n) -> end-effector pose (B, 4, 4) and geometric Jacobian (B, 6, n) in the base frame,
+    rows (linear velocity, angular velocity)."""
+    children, axes, revolute = joints or _joint_axes(robot)
+    frames = robot.fk(q)
+    T_ee = frames[robot.ee_link]
+    T_j = torch.stack([frames[c] for c in children], dim=1)  # (B, n, 4, 4) joint frames (= child link frames)
+    axis = torch.einsum("bnij,nj->bni", T_j[..., :3, :3], axes.to(q))  # (B, n, 3) in the base frame
+    lever = T_ee[:, None, :3, 3] - T_j[..., :3, 3]  # (B, n, 3)
+    rev = revolute.to(q.device)[None, :, None]
+    linear = torch.where(rev, torch.cross(axis, lever, dim=-1), axis)
+    angular = torch.where(rev, axis, torch.zeros_like(axis))
+    return T_ee, torch.cat([linear, angular], dim=-1).transpose(1, 2)  # (B, 6, n)
+
+
+def _error(T: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """(B, 4, 4) current and target poses -> (B, 6) twist-like error (position, orientation)."""
+    rot = 0.5 * torch.cross(T[:, :3, :3], target[:, :3, :3], dim=1).sum(dim=-1)  # sum over columns
+    return torch.cat([target[:, :3, 3] - T[:, :3, 3], rot], dim=-1)
+
+
+def _dls_step(J: torch.Tensor, e: torch.Tensor, damped_eye: torch.Tensor) -> torch.Tensor:
+    """J (B, 6, n), e (B, 6) -> dq (B, n) = J^T (J J^T + lambda^2 I)^-1 e."""
+    return (J.transpose(1, 2) @ torch.linalg.solve(J @ J.transpose(1, 2) + damped_eye, e[..., None]))[..., 0]
+
+
+def _random_q(robot, shape: tuple[int, ...], generator: torch.Generator) -> torch.Tensor:
+    """(*shape, n) configurations uniform within the joint limits."""
+    lo, hi = robot.joint_limits.to(robot.dtype).unbind(-1)
+    u = torch.rand(*shape, robot.dof, generator=generator, dtype=robot.dtype)
+    return lo + u * (hi - lo)
+
+
+def solve_ik(robot, targets: torch.Tensor, cfg: IKConfig | None = None, *, generator: torch.Generator,
+             q_init: torch.Tensor | None = None) -> IKResult:
+    """Solve targets (K, 4, 4) end-effector poses in the base frame from `cfg.seeds` random seeds each.
+
+    q_init (K, m, n) or (m, n), optional: configurations used as the first m seeds (e.g. the current
+    configuration). Seeds are drawn with `generator` (CPU), so a seeded generator gives identical results.
+    """
+    cfg = cfg or IKConfig()
+    if not isinstance(targets, torch.Tensor) or targets.ndim != 3 or targets.shape[1:] != (4, 4):
+        raise ValueError(f"targets must be a (K, 4, 4) tensor of poses, got "
+                         f"{tuple(targets.shape) if isinstance(targets, torch.Tensor) else type(targets).__name__}")
+    K, S, n = len(targets), cfg.seeds, robot.dof
+    targets = targets.to(robot.dtype)
+    q = _random_q(robot, (K, S), generator)  # (K, S, n)
+    if q_init is not None:
+        q_init = torch.as_tensor(q_init, dtype=robot.dtype).expand(K, -1, n) if q_init.ndim == 2 else q_init
+        m = min(q_init.shape[1], S)
+        q[:, :m] = q_init[:, :m].to(robot.dtype)
+    lo, hi = robot.joint_limits.to(robot.dtype).unbind(-1)
+    q = q.reshape(K * S, n).clamp(lo, hi)
+    flat_targets = targets[:, None].expand(K, S, 4, 4).reshape(K * S, 4, 4)
+    joints = _joint_axes(robot)
+    eye = torch.eye(6, dtype=robot.dtype) * cfg.damping ** 2
+    with torch.no_grad():
+        restart_at = {cfg.iterations * (r + 1) // (cfg.restarts + 1) for r in range(cfg.restarts)}
+        for it in range(cfg.iterations):
+            T, J = geometric_jacobian(robot, q, joints)  # (B, 4, 4), (B, 6, n)
+            e = _error(T, flat_targets)  # (B, 6)
+            if it in restart_at:  # seeds still far off are stuck in a local minimum: draw them afresh
+                stuck = e.norm(dim=1) > RESTART_ERROR
+                q = torch.where(stuck[:, None], _random_q(robot, (K * S,), generator), q)
+                T, J = geometric_jacobian(robot, q, joints)
+                e = _error(T, flat_targets)
+            dq = _dls_step(J, e, eye)  # (B, n)
+            # Joints at a limit and pushed beyond it are locked for this step (an active set), so the
+            # other joints take up the error instead of the clamp undoing part of every step.
+            locked = ((q <= lo) & (dq < 0)) | ((q >= hi) & (dq > 0))  # (B, n)
+            if bool(locked.any()):
+                dq = _dls_step(J * ~locked[:, None, :], e, eye)
+            scale = (cfg.max_step / dq.abs().amax(dim=1, keepdim=True).clamp_min(1e-12)).clamp(max=1.0)
+            q = (q + dq * scale).clamp(lo, hi)
+        pos_err, rot_err = pose_errors(robot.fk(q)[robot.ee_link], flat_targets)
+    converged = (pos_err <= cfg.position_tolerance) & (rot_err <= cfg.rotation_tolerance)
+    return IKResult(q.reshape(K, S, n), pos_err.reshape(K, S), rot_err.reshape(K, S), converged.reshape(K, S))

@@ -1,0 +1,193 @@
+"""The expert planner: OMPL in joint space, post-processed into verified 50-waypoint trajectories.
+
+`ExpertPlanner(robot, scene, cfg).plan(q_start, q_goal, seed)`:
+  1. rejects a start or goal outside the joint limits or closer than `clearance` to an obstacle (or in
+     self-collision), with the reason;
+  2. takes the straight joint-space motion when it is valid (the shortest path; it also sidesteps
+     AORRTC's zero-length-path error on such problems in ompl 2.0.1), otherwise plans with the
+     configured OMPL planner (states `clearance` clear of obstacles, motions checked every `resolution`
+     radians) and simplifies and smooths the path;
+  3. resamples it to `waypoints` configurations uniform in joint-space arc length, first and last
+     exactly q_start and q_goal, and checks every segment densely (`resolution`) with `check_margin`.
+A timeout or a failed dense check is retried with the next seed, up to `attempts`; what still fails
+comes back as a `PlanResult` with success False and the reason, never dropped.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from samp.expert.config import ExpertConfig, load_expert_config
+from samp.expert.ompl_backend import ANYTIME, plan_once, planner_class
+from samp.expert.trajectory import ee_path_length, first_invalid_segment, joint_path_length, resample, segment_states
+
+__all__ = ["ExpertPlanner", "PlanResult", "derive_seed", "make_planner", "plan_scene"]
+
+
+def derive_seed(seed: int, *keys: int) -> int:
+    """A 32-bit seed determined by `seed` and `keys` (attempt, problem index), well mixed."""
+    return int(np.random.SeedSequence([int(seed) % 2**63, *map(int, keys)]).generate_state(1)[0])
+
+
+@dataclass
+class PlanResult:
+    """One planning problem's outcome. On success `trajectory` is (waypoints, n) radians and `reason` is ""."""
+
+    success: bool
+    trajectory: np.ndarray | None
+    reason: str
+    stats: dict = field(default_factory=dict)  # planning_time (s), attempts, joint_path_length (rad), ...
+    q_start: np.ndarray | None = None  # (n,)
+    q_goal: np.ndarray | None = None  # (n,)
+
+    def to_record(self) -> dict:
+        """JSON-ready summary (no trajectory): success, reason, start, goal, stats."""
+        as_list = lambda a: None if a is None else np.asarray(a).tolist()  # noqa: E731
+        return {"success": self.success, "reason": self.reason, "q_start": as_list(self.q_start),
+                "q_goal": as_list(self.q_goal), "stats": dict(self.stats)}
+
+
+def _as_config(q, n: int, name: str) -> np.ndarray | None:
+    if q is None:
+        return None
+    if hasattr(q, "detach"):
+        q = q.detach().cpu().numpy()
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape != (n,) or not np.all(np.isfinite(q)):
+        raise ValueError(f"{name} must be a finite ({n},) configuration in radians, got shape {q.shape}")
+    return q
+
+
+class ExpertPlanner:
+    """OMPL expert for one robot in one scene. Owns a `World` unless one is passed; use as a context
+    manager or call `close()`."""
+
+    backend = "ompl"
+
+    def __init__(self, robot, scene, cfg: ExpertConfig | dict | str | None = None, world=None):
+        from samp.sim import World
+
+        self.cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
+        if self.cfg.backend != "ompl":
+            raise ValueError(f"ExpertPlanner is the OMPL backend, but the config asks for backend {self.cfg.backend!r}; "
+                             "use samp.expert.make_planner to pick the backend from the config")
+        planner_class(self.cfg.planner)  # an unknown name fails here, before any work
+        self.robot, self.scene = robot, scene
+        self._owns_world = world is None
+        self.world = World(robot, scene) if world is None else world
+
+    def __enter__(self) -> "ExpertPlanner":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._owns_world:
+            self.world.close()
+
+    def valid(self, q: np.ndarray) -> np.ndarray:
+        """q (B, n) -> (B,) bool: within limits, clear of obstacles by `clearance`, no self-collision."""
+        return ~self.world.in_collision(q, margin=self.cfg.clearance)
+
+    def endpoint_problem(self, q: np.ndarray | None, name: str) -> str:
+        """Why q (n,) cannot be a start or goal ("" if it can)."""
+        if q is None:
+            return f"no valid {name}"
+        if self.world.outside_limits(q[None])[0]:
+            lim = self.robot.joint_limits.double().cpu().numpy()
+            bad = [self.robot.joint_names[j] for j in np.flatnonzero((q < lim[:, 0]) | (q > lim[:, 1]))]
+            return f"{name} outside the joint limits at {bad}"
+        if self.valid(q[None])[0]:
+            return ""
+        d = float(self.world.min_distance(q[None])[0])
+        if d < 0:
+            return f"{name} in collision: penetrates an obstacle by {-d:.4f} m"
+        if d < self.cfg.clearance:
+            return f"{name} in collision: {d:.4f} m from an obstacle, closer than the clearance {self.cfg.clearance} m"
+        return f"{name} in collision: self-collision"
+
+    def plan(self, q_start, q_goal, seed: int = 0) -> PlanResult:
+        """Plan from q_start (n,) to q_goal (n,) radians; reproducible for a given seed."""
+        t0, cfg, n = time.perf_counter(), self.cfg, self.robot.dof
+        q_start, q_goal = _as_config(q_start, n, "q_start"), _as_config(q_goal, n, "q_goal")
+        stats = {"planner": cfg.planner, "backend": self.backend, "seed": int(seed), "attempts": 0, "direct": False,
+                 "solve_time": 0.0, "simplify_time": 0.0, "motion_checks": 0}
+
+        def finish(success: bool, traj: np.ndarray | None, reason: str) -> PlanResult:
+            stats["planning_time"] = time.perf_counter() - t0
+            if traj is not None:
+                stats["joint_path_length"] = joint_path_length(traj)
+                stats["ee_path_length"] = ee_path_length(self.robot, traj)
+            return PlanResult(success, traj if success else None, reason, stats, q_start, q_goal)
+
+        reason = self.endpoint_problem(q_start, "start") or self.endpoint_problem(q_goal, "goal")
+        if reason:
+            return finish(False, None, reason)
+        direct = bool(self.valid(segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]).all())
+        for attempt in range(cfg.attempts):
+            stats["attempts"] = attempt + 1
+            path, reason = self._attempt(q_start, q_goal, derive_seed(seed, attempt), direct, stats)
+            if path is None:
+                continue
+            traj = resample(path, cfg.waypoints)
+            traj[0], traj[-1] = q_start, q_goal
+            k = first_invalid_segment(self.world, traj, cfg.resolution, cfg.check_margin)
+            if k is None:
+                return finish(True, traj, "")
+            reason = (f"dense check failed at segment {k}: a state between waypoints {k} and {k + 1} is closer than "
+                      f"{cfg.check_margin} m to an obstacle or in self-collision")
+            direct = False  # the straight motion passed at `resolution` but not densely: plan around it
+        return finish(False, None, reason)
+
+    def _attempt(self, q_start, q_goal, seed: int, direct: bool, stats: dict) -> tuple[np.ndarray | None, str]:
+        """One attempt: (path (m, n), "") or (None, reason)."""
+        stats["direct"] = direct
+        if direct:
+            return np.stack([q_start, q_goal]), ""
+        out = plan_once(self.robot, self.cfg, self.valid, q_start, q_goal, seed)
+        stats["solve_time"] += out.solve_time
+        stats["simplify_time"] += out.simplify_time
+        stats["motion_checks"] += out.motion_checks
+        if out.solved:
+            return out.path, ""
+        cfg = self.cfg
+        if cfg.planner in ANYTIME and cfg.max_checks and out.motion_checks >= cfg.max_checks:
+            return None, f"planner gave up: {cfg.planner} found no solution in {cfg.max_checks} motion checks (OMPL: {out.status})"
+        return None, f"planner timeout: {cfg.planner} found no exact solution in {cfg.time_limit} s (OMPL: {out.status})"
+
+
+def make_planner(robot, scene, cfg: ExpertConfig | dict | str | None = None, world=None):
+    """The planner of `cfg.backend`: `ExpertPlanner` (ompl) or `CuroboPlanner` (curobo, optional)."""
+    cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
+    if cfg.backend == "curobo":
+        from samp.expert.curobo import CuroboPlanner
+
+        return CuroboPlanner(robot, scene, cfg)
+    return ExpertPlanner(robot, scene, cfg, world)
+
+
+def plan_scene(robot, scene, count: int, seed: int, cfg: ExpertConfig | dict | str | None = None,
+               progress: bool = False) -> list[PlanResult]:
+    """Sample `count` problems in `scene` (`samp.expert.problems.sample_problems`) and plan each; a problem
+    without a valid goal is a failed `PlanResult` with its reason. Seeded: same seed, same results."""
+    from tqdm.auto import tqdm
+
+    from samp.expert.problems import sample_problems
+
+    cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
+    with make_planner(robot, scene, cfg) as planner:
+        problems = sample_problems(robot, scene, count, seed, cfg, world=getattr(planner, "world", None))
+        results = []
+        for i, problem in enumerate(tqdm(problems, desc=f"expert {scene.name}", disable=not progress, unit="traj")):
+            if problem.q_goal is None:
+                result = PlanResult(False, None, problem.reason, {"planner": cfg.planner, "backend": cfg.backend,
+                                                                  "attempts": 0, "planning_time": 0.0}, problem.q_start)
+            else:
+                result = planner.plan(problem.q_start, problem.q_goal, seed=derive_seed(seed, i))
+            result.stats.update(goal_kind=problem.kind, goal_pose=None if problem.goal_pose is None else problem.goal_pose.tolist())
+            results.append(result)
+    return results

@@ -1,0 +1,168 @@
+"""The expert planner: trajectories are 50 waypoints from start to goal within limits, collision-free by an
+independent check (the analytic scene SDF at points sampled on the link surfaces, posed by FK, at
+interpolated configurations along every segment), reproducible by seed, and failures carry reasons."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+import samp.expert.planner as planner_module
+from samp.expert import ExpertPlanner, load_expert_config, plan_scene
+from samp.expert.problems import random_free_configs
+from samp.expert.trajectory import segment_states
+from samp.scene import Pose, Scene, Sphere, generate_scene
+
+SURFACE_POINTS = 1000  # per link
+SUBSTEPS = 10  # interpolated configurations per segment
+
+
+@pytest.fixture(scope="module")
+def panda(robots):
+    return robots["panda"]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return generate_scene("tabletop", seed=0, num_obstacles=[3, 3])
+
+
+@pytest.fixture(scope="module")
+def surface(panda):
+    """link name -> (P, 3) points on the link's convex parts, link frame (the fixed base link excluded:
+    it stands on the table)."""
+    out = {}
+    for i, name in enumerate(panda.link_names):
+        if name != panda.base_link:
+            mesh = trimesh.util.concatenate(panda.geometry[name].parts)
+            out[name] = np.asarray(trimesh.sample.sample_surface(mesh, SURFACE_POINTS, seed=i)[0])
+    return out
+
+
+def independent_clearance(robot, scene, surface, traj: np.ndarray) -> float:
+    """Smallest scene SDF over the surface points at SUBSTEPS configurations per segment of traj (W, n)."""
+    t = np.linspace(0.0, 1.0, SUBSTEPS, endpoint=False)[None, :, None]  # (1, T, 1)
+    q = (traj[:-1, None] + t * (traj[1:] - traj[:-1])[:, None]).reshape(-1, traj.shape[1])
+    q = torch.from_numpy(np.concatenate([q, traj[-1:]]))  # (C, n)
+    frames = robot.fk(q)
+    best = np.inf
+    for name, points in surface.items():
+        T = frames[name].numpy()  # (C, 4, 4)
+        world = np.einsum("cij,pj->cpi", T[:, :3, :3], points) + T[:, None, :3, 3]  # (C, P, 3)
+        best = min(best, float(np.min(scene.sdf(world.reshape(-1, 3)))))
+    return best
+
+
+def check_trajectory(robot, scene, surface, result, cfg) -> None:
+    assert result.success, result.reason
+    traj = result.trajectory
+    assert traj.shape == (cfg.waypoints, robot.dof) == (50, 7)
+    assert np.array_equal(traj[0], result.q_start) and np.array_equal(traj[-1], result.q_goal)
+    lim = robot.joint_limits.numpy()
+    assert np.all(traj >= lim[:, 0]) and np.all(traj <= lim[:, 1])
+    clearance = independent_clearance(robot, scene, surface, traj)
+    assert clearance >= 0.0, f"the robot penetrates an obstacle by {-clearance:.4f} m along the trajectory"
+    for key in ("planning_time", "attempts", "joint_path_length", "ee_path_length", "planner"):
+        assert key in result.stats, f"stats lack {key!r}: {sorted(result.stats)}"
+    assert result.stats["joint_path_length"] > 0 and result.stats["ee_path_length"] > 0
+
+
+@pytest.fixture(scope="module")
+def planned(panda, scene):
+    cfg = load_expert_config()
+    return cfg, plan_scene(panda, scene, 3, seed=0, cfg=cfg)
+
+
+@pytest.fixture(scope="module")
+def blocked(panda, scene):
+    """(start, goal) free configurations whose straight joint-space motion collides: the planner must plan."""
+    cfg = load_expert_config()
+    with ExpertPlanner(panda, scene, cfg) as planner:
+        q = random_free_configs(panda, planner.world, 40, np.random.default_rng(0), cfg.clearance)
+        for a, b in zip(q[0::2], q[1::2]):
+            if not planner.valid(segment_states(np.stack([a, b]), cfg.resolution)[0]).all():
+                return a, b
+    pytest.fail("no start/goal pair with a blocked straight motion among 20 random pairs")
+
+
+def test_plan_scene_trajectories_are_valid(panda, scene, surface, planned):
+    cfg, results = planned
+    assert len(results) == 3
+    for result in results:
+        check_trajectory(panda, scene, surface, result, cfg)
+        assert result.stats["goal_kind"] in ("target", "workspace")
+
+
+def test_plan_scene_is_reproducible(panda, scene, planned):
+    cfg, results = planned
+    again = plan_scene(panda, scene, 3, seed=0, cfg=cfg)
+    for a, b in zip(results, again):
+        assert np.array_equal(a.trajectory, b.trajectory)
+
+
+def test_planning_around_an_obstacle(panda, scene, surface, blocked):
+    cfg = load_expert_config()
+    with ExpertPlanner(panda, scene, cfg) as planner:
+        result = planner.plan(*blocked, seed=1)
+    check_trajectory(panda, scene, surface, result, cfg)
+    assert not result.stats["direct"] and result.stats["motion_checks"] > 0
+
+
+def test_same_seed_same_plan_different_seed_different_plan(panda, scene, blocked):
+    with ExpertPlanner(panda, scene) as planner:
+        a, b, c = (planner.plan(*blocked, seed=s) for s in (5, 5, 6))
+    assert a.success and b.success and c.success, (a.reason, b.reason, c.reason)
+    assert np.array_equal(a.trajectory, b.trajectory)
+    assert not np.array_equal(a.trajectory, c.trajectory)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["AORRTC", "RRTstar"])
+def test_anytime_planners(panda, scene, surface, blocked, name):
+    """A motion-check budget (not the generous time limit) ends the search, so the plan repeats."""
+    cfg = load_expert_config(planner=name, max_checks=300, time_limit=60.0)
+    with ExpertPlanner(panda, scene, cfg) as planner:
+        result, again = planner.plan(*blocked, seed=2), planner.plan(*blocked, seed=2)
+    check_trajectory(panda, scene, surface, result, cfg)
+    assert result.stats["planner"] == name
+    assert np.array_equal(result.trajectory, again.trajectory)
+
+
+def test_goal_in_collision_is_a_failure_with_reason(panda):
+    hand = panda.fk(panda.home[None])[panda.ee_link][0, :3, 3].tolist()
+    scene = Scene("blocked", obstacles=(Sphere("ball", 0.05, Pose(tuple(hand))),))
+    with ExpertPlanner(panda, scene) as planner:
+        start = random_free_configs(panda, planner.world, 1, np.random.default_rng(0), planner.cfg.clearance)[0]
+        result = planner.plan(start, panda.home.numpy(), seed=0)
+        outside = planner.plan(start + np.array([10.0, 0, 0, 0, 0, 0, 0]), start, seed=0)
+    assert not result.success and result.trajectory is None
+    assert result.reason.startswith("goal in collision: penetrates an obstacle"), result.reason
+    assert outside.reason == "start outside the joint limits at ['panda_joint1']", outside.reason
+
+
+def test_timeout_is_a_failure_with_reason(panda, scene, blocked):
+    cfg = load_expert_config(time_limit=1e-6, attempts=2)
+    with ExpertPlanner(panda, scene, cfg) as planner:
+        result = planner.plan(*blocked, seed=0)
+    assert not result.success and result.trajectory is None
+    assert result.reason.startswith("planner timeout: RRTConnect found no exact solution"), result.reason
+    assert result.stats["attempts"] == 2
+
+
+def test_failed_dense_check_is_retried_then_reported(panda, scene, blocked, monkeypatch):
+    monkeypatch.setattr(planner_module, "first_invalid_segment", lambda *args, **kwargs: 7)
+    with ExpertPlanner(panda, scene, load_expert_config(attempts=2)) as planner:
+        result = planner.plan(*blocked, seed=0)
+    assert not result.success and result.reason.startswith("dense check failed at segment 7"), result.reason
+    assert result.stats["attempts"] == 2
+
+
+def test_problems_without_goals_are_kept_as_failures(panda, scene):
+    cfg = load_expert_config({"ik": {"seeds": 4, "iterations": 20},
+                              "problems": {"target_fraction": 0.0, "radius": [1.2, 1.4], "goal_rounds": 1,
+                                           "poses_per_goal": 1}})
+    results = plan_scene(panda, scene, 2, seed=0, cfg=cfg)
+    assert len(results) == 2
+    assert all(not r.success and r.reason.startswith("no valid goal") and r.trajectory is None for r in results)

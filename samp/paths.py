@@ -1,4 +1,4 @@
-"""Where samp finds its configs and keeps its caches.
+"""Where samp finds its configs and keeps its caches, and how it fingerprints files.
 
 `SAMP_CONF_DIR` and `SAMP_CACHE_DIR` override the defaults (the repository's `conf/` and
 `$XDG_CACHE_HOME/samp`, i.e. `~/.cache/samp`).
@@ -6,10 +6,11 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
-__all__ = ["REPO_ROOT", "conf_dir", "cache_dir", "resolve_asset"]
+__all__ = ["REPO_ROOT", "cache_dir", "conf_dir", "file_sha256", "resolve_asset"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PYBULLET_DATA_SCHEME = "pybullet_data://"
@@ -48,3 +49,12 @@ def resolve_asset(ref: str, relative_to: Path | None = None) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"asset {ref!r} resolves to {path}, which is not a file")
     return path.resolve()
+
+
+def file_sha256(path) -> str:
+    """Hex sha256 of a file's bytes, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

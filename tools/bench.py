@@ -7,6 +7,9 @@ and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites
     scene   anchor grids at n_e in {40, 100, 160} and World.in_collision on a 20-obstacle scene; baselines:
             the same distances one point at a time (timed on a sample, scaled to the grid), and a pairwise
             pybullet check of every link part against every obstacle without broadphase
+    data    expert trajectories per second on --workers processes and the planner's success rate per
+            scene generator; open_dataset (decoded waypoints per second) and grid decoding against the
+            same arrays read from a .npz file
 """
 
 from __future__ import annotations
@@ -186,6 +189,66 @@ def scene(args) -> tuple[dict, list[list]]:
     return metrics, [["what", "samp", "baseline", "speedup"], *rows, *world_rows]
 
 
+@suite
+def data(args) -> tuple[dict, list[list]]:
+    """Expert generation on `--workers` processes, and decoding the dataset against the same arrays in .npz."""
+    import tempfile
+
+    from samp.data import generate, open_dataset, read_manifest
+    from samp.data.mcap_io import read_scene_file
+
+    spec = {"name": "bench", "robot": args.robot, "seed": 0, "train_scenes": args.scenes - 1, "heldout_scenes": 1,
+            "trajectories_per_scene": args.trajectories, "generators": ["tabletop", "shelf", "cabinet", "blocks"],
+            "resolutions": [40, 100]}
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        t0 = time.perf_counter()
+        folder = generate(spec, workers=args.workers, root=root, progress=True)
+        t_gen = time.perf_counter() - t0
+        m = read_manifest(folder)
+        ds = open_dataset(folder)
+        problems = m["counts"]["episodes"]
+        metrics = {"generate/s": t_gen, "generate/problems": problems, "generate/workers": args.workers,
+                   "generate/trajectories_per_s": m["counts"]["trajectories"] / t_gen,
+                   "generate/problems_per_s": problems / t_gen}
+        rows = [[f"expert generation, {args.workers} workers", f"{problems / t_gen:.2f} problems/s",
+                 f"{m['counts']['trajectories']}/{problems} solved", ""]]
+        for gen in spec["generators"]:
+            eps = [e for e in ds.episodes if ds.manifest["scenes"][e["scene"]]["generator"] == gen]
+            rate = sum(e["success"] for e in eps) / max(1, len(eps))
+            metrics[f"success/{gen}"] = rate
+            rows.append([f"  planner success, {gen}", f"{rate:.0%} of {len(eps)}", "", ""])
+
+        npz = root / "same.npz"
+        np.savez(npz, trajectories=ds.trajectories.numpy(), traj_scene=ds.traj_scene.numpy(),
+                 **{f"grid{i}": ds.grid(i, 100).numpy() for i in range(len(ds.scenes))})
+        samples = ds.trajectories.shape[0] * ds.trajectories.shape[1]  # one sample: one waypoint q_t
+
+        def read_npz(grids: bool):
+            with np.load(npz) as z:
+                out = [torch.from_numpy(z["trajectories"]), torch.from_numpy(z["traj_scene"])]
+                if grids:
+                    out += [torch.from_numpy(z[f"grid{i}"]) for i in range(len(ds.scenes))]
+            return out
+
+        cpu = torch.device("cpu")
+        t_mcap = timeit(lambda: open_dataset(folder), cpu, min_time=0.0, repeats=3)
+        t_npz = timeit(lambda: read_npz(False), cpu, min_time=0.0, repeats=3)
+        files = [folder / s["file"] for s in m["scenes"]]
+        t_grid = timeit(lambda: [read_scene_file(f, resolutions=[100]) for f in files], cpu, min_time=0.0, repeats=3)
+        t_grid_npz = timeit(lambda: read_npz(True), cpu, min_time=0.0, repeats=3) - t_npz
+        metrics.update({"read/samples": samples, "read/mcap_samples_per_s": samples / t_mcap,
+                        "read/npz_samples_per_s": samples / t_npz, "read/mcap_vs_npz": t_npz / t_mcap,
+                        "read/grid100_mcap_s_per_scene": t_grid / len(files),
+                        "read/grid100_npz_s_per_scene": max(t_grid_npz, 0.0) / len(files),
+                        "dataset/bytes": sum(f.stat().st_size for f in files)})
+        rows += [[f"open_dataset ({samples} waypoints)", f"{samples / t_mcap:,.0f} samples/s",
+                  f"{samples / t_npz:,.0f} samples/s (npz)", f"{t_npz / t_mcap:.3f}x"],
+                 ["grid n_e=100, per scene", f"{1e3 * t_grid / len(files):.1f} ms", f"{1e3 * max(t_grid_npz, 0) / len(files):.1f} ms (npz)",
+                  f"{max(t_grid_npz, 1e-9) / t_grid:.2f}x"]]
+    return metrics, [["what", "samp", "baseline", "ratio"], *rows]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("suite", choices=sorted(SUITES))
@@ -195,6 +258,9 @@ def main(argv=None) -> int:
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 50, 1024])
     ap.add_argument("--anchors", type=int, nargs="+", default=[40, 100, 160])
     ap.add_argument("--configs", type=int, default=500, help="configurations for World.in_collision")
+    ap.add_argument("--workers", type=int, default=2, help="data: worker processes for expert generation")
+    ap.add_argument("--scenes", type=int, default=4, help="data: scenes generated (one held out)")
+    ap.add_argument("--trajectories", type=int, default=25, help="data: problems per scene")
     args = ap.parse_args(argv)
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         ap.error("--device cuda was asked for but torch sees no CUDA device")

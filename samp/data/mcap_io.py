@@ -13,6 +13,7 @@ and a `samp.dataset` metadata record. Chunks are zstd-compressed.
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.VoxelGrid_pb2 import VoxelGrid
+from google.protobuf.message import DecodeError
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
@@ -38,8 +40,11 @@ EPISODE_SCHEMA = {
     "type": "object", "title": "samp.Episode",
     "required": ["episode", "success", "reason", "start", "goal", "stats"],
     "properties": {"episode": {"type": "integer"}, "success": {"type": "boolean"}, "reason": {"type": "string"},
+                   "kind": {"enum": ["target", "workspace"]},
                    "start": {"type": "array", "items": {"type": "number"}},
-                   "goal": {"type": "array", "items": {"type": "number"}}, "stats": {"type": "object"}},
+                   "goal": {"type": ["array", "null"], "items": {"type": "number"}},
+                   "goal_pose": {"type": ["array", "null"], "items": {"type": "array"}},
+                   "stats": {"type": "object"}},
 }
 SCENE_SPEC_SCHEMA = {"type": "object", "title": "samp.SceneSpec", "required": ["scene_index", "split", "scene"],
                      "properties": {"scene_index": {"type": "integer"}, "split": {"enum": ["train", "heldout"]},
@@ -54,6 +59,8 @@ class SceneRecord:
     scene_index: int
     split: str
     joint_names: list[str]
+    metadata: dict[str, str] = field(default_factory=dict)  # the file's samp.dataset metadata record
+    resolutions: list[int] = field(default_factory=list)  # n_e of every grid in the file
     grids: dict[int, torch.Tensor] = field(default_factory=dict)  # n_e -> (n_e, n_e, n_e), indexed (x, y, z)
     trajectories: np.ndarray | None = None  # (E_ok, T, n) radians, successful episodes in episode order
     episodes: list[dict] = field(default_factory=list)  # every episode, failures included
@@ -147,31 +154,42 @@ def _grid_from_voxels(msg) -> torch.Tensor:
 
 
 def read_scene_file(path: Path, resolutions: list[int] | None = None) -> SceneRecord:
-    """Decode one scene file; `resolutions` limits which grids are decoded (None: all)."""
+    """Decode one scene file; `resolutions` limits which grids are decoded (None: all, []: none; chunks
+    holding only other grids are not even decompressed)."""
     try:
         with open(path, "rb") as f:
-            record, waypoints, grids = None, {}, {}
-            for _, channel, message in make_reader(f).iter_messages():
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None:
+                raise EOFError("the file has no summary section")
+            grid_topics = {c.topic: int(c.topic[len("/sdf/n"):]) for c in summary.channels.values()
+                           if c.topic.startswith("/sdf/n")}
+            wanted = [t for t, n in grid_topics.items() if resolutions is None or n in resolutions]
+            metadata = {}
+            for m in reader.iter_metadata():
+                if m.name == "samp.dataset":
+                    metadata = dict(m.metadata)
+            record, waypoints, episodes, grids = None, {}, [], {}
+            for _, channel, message in reader.iter_messages(topics=["/scene/spec", "/episode", "/trajectory", *wanted],
+                                                           log_time_order=False):  # file order: written in order
                 topic = channel.topic
                 if topic == "/scene/spec":
                     spec = json.loads(message.data)
                     record = SceneRecord(Scene.from_dict(spec["scene"]), spec["scene_index"], spec["split"], spec["joint_names"])
-                elif topic.startswith("/sdf/n"):
-                    n_e = int(topic[len("/sdf/n"):])
-                    if resolutions is None or n_e in resolutions:
-                        grids[n_e] = _grid_from_voxels(VoxelGrid.FromString(message.data))
+                elif topic in grid_topics:
+                    grids[grid_topics[topic]] = _grid_from_voxels(VoxelGrid.FromString(message.data))
                 elif topic == "/episode":
-                    waypoints.setdefault("episodes", []).append(json.loads(message.data))
-                elif topic == "/trajectory":
+                    episodes.append(json.loads(message.data))
+                else:
                     joints = JointStates.FromString(message.data).joints
                     waypoints.setdefault(message.log_time // STEP_NS, []).append([j.position for j in joints])
-    except (McapError, EOFError, ValueError, KeyError) as err:
+    except (McapError, EOFError, ValueError, KeyError, struct.error, DecodeError) as err:
         raise ValueError(f"{path} is not a readable samp scene file ({type(err).__name__}: {err}); it may be "
                          "truncated: run `python -m samp.data verify` on its dataset") from None
     if record is None:
         raise ValueError(f"{path} has no /scene/spec record; it is not a samp scene file")
-    record.grids = grids
-    record.episodes = sorted(waypoints.pop("episodes", []), key=lambda e: e["episode"])
+    record.metadata, record.resolutions, record.grids = metadata, sorted(grid_topics.values()), grids
+    record.episodes = sorted(episodes, key=lambda e: e["episode"])
     trajs = [np.asarray(waypoints[e]) for e in sorted(waypoints)]
     n = len(record.joint_names)
     record.trajectories = np.stack(trajs) if trajs else np.zeros((0, 0, n))

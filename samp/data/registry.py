@@ -16,7 +16,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from samp.paths import REPO_ROOT
-from samp.robot.geometry import file_sha256
+from samp.paths import file_sha256
 
 __all__ = ["FORMAT_VERSION", "MANIFEST", "DatasetError", "content_id", "datasets_root", "finalize_dataset",
            "list_datasets", "read_manifest", "resolve_ref", "verify_dataset"]
@@ -62,11 +62,15 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), **manifest, "files": files}
     (tmp / MANIFEST).write_text(json.dumps(full, indent=2, sort_keys=True))
     dest = root / name / ident
-    if dest.exists():
-        shutil.rmtree(tmp)
-        return dest
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp.rename(dest)
+    try:
+        if dest.exists():
+            raise FileExistsError(dest)
+        tmp.rename(dest)
+    except OSError:
+        if not (dest / MANIFEST).is_file():  # not a concurrent writer of the same content: a real failure
+            raise
+        shutil.rmtree(tmp)
     return dest
 
 

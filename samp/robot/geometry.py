@@ -10,7 +10,6 @@ points, the robot SDF and the simulator alike.
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +17,7 @@ import trimesh
 
 from samp.robot.urdf import Collision
 
-__all__ = ["LinkGeometry", "link_geometry", "file_sha256"]
+__all__ = ["LinkGeometry", "link_geometry"]
 
 
 @dataclass
@@ -85,9 +84,3 @@ def link_geometry(name: str, collisions: list[Collision]) -> LinkGeometry:
     return LinkGeometry(name=name, parts=parts, mesh=mesh)
 
 
-def file_sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()

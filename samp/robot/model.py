@@ -16,9 +16,9 @@ import pytorch_kinematics as pk
 import torch
 from torch import nn
 
-from samp.paths import cache_dir, resolve_asset
+from samp.paths import cache_dir, file_sha256, resolve_asset
 from samp.robot.config import RobotConfig, load_robot_config
-from samp.robot.geometry import LinkGeometry, file_sha256, link_geometry
+from samp.robot.geometry import LinkGeometry, link_geometry
 from samp.robot.points import sample_shell_points
 from samp.robot.urdf import URDFModel, parse_urdf
 

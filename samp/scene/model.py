@@ -123,7 +123,7 @@ class MeshObstacle:
         return resolve_asset(self.path)
 
     def file_hash(self) -> str:
-        from samp.robot.geometry import file_sha256
+        from samp.paths import file_sha256
 
         return file_sha256(self.resolved_path())
 

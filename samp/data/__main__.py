@@ -1,0 +1,176 @@
+"""`python -m samp.data COMMAND ...`: generate, merge, list, show, verify and inspect datasets."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from samp.cli import compose, run_command
+
+USAGE = """usage: python -m samp.data COMMAND ...
+  generate +dataset=NAME [workers=N] [shard=i num_shards=n] [root=DIR]   plan and write a dataset (resumable)
+  merge +dataset=NAME [root=DIR]          join the scene files of all shards into one dataset
+  ls [root=DIR]                           the datasets in the registry
+  show REF                                a dataset's manifest: spec, counts, splits, provenance
+  verify REF                              re-hash every file; names each file that differs (exit 1)
+  inspect REF                             per-scene and per-generator statistics, MCAP channels and schemas
+REF is NAME (the newest), NAME@ID (an id prefix is enough) or a dataset folder. Specs: conf/dataset/."""
+
+
+def _config(overrides: list[str]):
+    cfg = compose("data", overrides)
+    if "dataset" not in cfg:
+        from samp.data.spec import available_specs
+
+        raise ValueError(f"say which dataset spec to use: +dataset=NAME with NAME in {available_specs()}")
+    return cfg
+
+
+def _root(cfg_or_args) -> Path | None:
+    root = cfg_or_args.get("root") if hasattr(cfg_or_args, "get") else None
+    return Path(root) if root else None
+
+
+def _generate(overrides: list[str]) -> None:
+    from omegaconf import OmegaConf
+
+    from samp.data.generation import generate
+
+    cfg = _config(overrides)
+    spec = OmegaConf.to_container(cfg.dataset, resolve=True)
+    dest = generate(spec, shard=cfg.shard, num_shards=cfg.num_shards, workers=cfg.workers, root=_root(cfg),
+                    progress=cfg.progress)
+    if dest is not None:
+        _print_summary(dest)
+
+
+def _merge(overrides: list[str]) -> None:
+    from omegaconf import OmegaConf
+
+    from samp.data.generation import merge
+
+    cfg = _config(overrides)
+    _print_summary(merge(OmegaConf.to_container(cfg.dataset, resolve=True), _root(cfg)))
+
+
+def _print_summary(folder: Path) -> None:
+    from samp.data.registry import read_manifest
+
+    m = read_manifest(folder)
+    c = m["counts"]
+    print(f"dataset {m['name']}@{m['id']} in {folder}")
+    print(f"  {c['scenes']} scenes ({c['train_scenes']} train, {c['heldout_scenes']} held out), {c['trajectories']} "
+          f"trajectories, {c['failures']} failed problems, planner time {m['planning_time']['total_s']:.1f} s")
+
+
+def _parse(args: list[str], needs_ref: bool) -> tuple[str | None, dict]:
+    ref, opts = None, {}
+    for a in args:
+        key, eq, value = a.partition("=")
+        if eq and key in ("root", "ref"):
+            opts[key] = value
+        elif not eq and ref is None:
+            ref = a
+        else:
+            raise ValueError(f"unexpected argument {a!r}; see `python -m samp.data` for usage")
+    ref = ref or opts.pop("ref", None)
+    if needs_ref and not ref:
+        raise ValueError("say which dataset: REF is NAME, NAME@ID or a folder (list them with `python -m samp.data ls`)")
+    return ref, opts
+
+
+def _ls(args: list[str]) -> None:
+    from samp.data.registry import datasets_root, list_datasets
+
+    _, opts = _parse(args, needs_ref=False)
+    root = _root(opts) or datasets_root()
+    rows = list_datasets(root)
+    if not rows:
+        print(f"no datasets under {root}; generate one with `python -m samp.data generate +dataset=quickstart`")
+        return
+    print(f"{'name@id':<32} {'created':<26} {'scenes':>6} {'trajs':>7} {'MB':>8}")
+    for d in rows:
+        mb = sum(f.stat().st_size for f in Path(d["path"]).iterdir()) / 1e6
+        counts = d.get("counts", {})
+        print(f"{d['name'] + '@' + d['id']:<32} {d['created']:<26} {counts.get('scenes', '-'):>6} "
+              f"{counts.get('trajectories', '-'):>7} {mb:8.1f}")
+
+
+def _show(args: list[str]) -> None:
+    from samp.data.registry import read_manifest, resolve_ref
+
+    ref, opts = _parse(args, needs_ref=True)
+    folder = resolve_ref(ref, _root(opts))
+    m = read_manifest(folder)
+    shown = {k: v for k, v in m.items() if k not in ("files", "scenes")}
+    config = dict(shown.get("config", {}))
+    for key in ("expert_config", "generator_configs"):  # long; the full text is in manifest.json
+        if key in config:
+            config[key] = f"(resolved, {len(json.dumps(config[key]))} characters: see {folder / 'manifest.json'})"
+    shown["config"] = config
+    shown["files"] = f"{len(m['files'])} files, {sum(f['size'] for f in m['files'].values()) / 1e6:.1f} MB"
+    print(f"# {folder}")
+    print(json.dumps(shown, indent=2, sort_keys=True))
+
+
+def _verify(args: list[str]) -> None:
+    from samp.data.registry import resolve_ref, verify_dataset
+
+    ref, opts = _parse(args, needs_ref=True)
+    folder = resolve_ref(ref, _root(opts))
+    problems = verify_dataset(folder)
+    if problems:
+        print(f"dataset {folder} FAILED verification:", file=sys.stderr)
+        for p in problems:
+            print(f"  {p}", file=sys.stderr)
+        raise SystemExit(1)
+    print(f"dataset {folder}: every file matches its sha256")
+
+
+def _inspect(args: list[str]) -> None:
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from samp.data.dataset import open_dataset
+
+    ref, opts = _parse(args, needs_ref=True)
+    ds = open_dataset(ref, _root(opts))
+    print(repr(ds))
+    print(f"{'scene':<28} {'generator':<10} {'split':<8} {'solved':>9} {'ee path m':>10} {'plan s':>8}")
+    by_gen: dict[str, list[int]] = {}
+    for i, s in enumerate(ds.manifest["scenes"]):
+        eps = [e for e in ds.episodes if e["scene"] == i]
+        ok = [e for e in eps if e["success"]]
+        by_gen.setdefault(s["generator"], [0, 0])
+        by_gen[s["generator"]][0] += len(ok)
+        by_gen[s["generator"]][1] += len(eps)
+        ee = np.mean([e["stats"]["ee_path_length"] for e in ok]) if ok else float("nan")
+        print(f"{s['name']:<28} {s['generator']:<10} {s['split']:<8} {len(ok):>4}/{len(eps):<4} {ee:10.3f} "
+              f"{np.mean(s['planning_time']) if s['planning_time'] else 0:8.2f}")
+    print("success rate per generator: " + ", ".join(f"{g} {a / max(b, 1):.0%} ({a}/{b})" for g, (a, b) in by_gen.items()))
+    reasons: dict[str, int] = {}
+    for e in ds.episodes:
+        if not e["success"]:
+            key = e["reason"].split(":")[0]
+            reasons[key] = reasons.get(key, 0) + 1
+    if reasons:
+        print("failures: " + ", ".join(f"{k} x{v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1])))
+    with open(ds.path / ds.manifest["scenes"][0]["file"], "rb") as f:
+        summary = make_reader(f).get_summary()
+    stats = summary.statistics
+    print(f"MCAP {ds.manifest['scenes'][0]['file']}: {stats.message_count} messages, {stats.chunk_count} chunks")
+    for cid, ch in sorted(summary.channels.items()):
+        schema = summary.schemas.get(ch.schema_id)
+        print(f"  {ch.topic:<14} {ch.message_encoding:<9} {schema.name if schema else '-':<22} "
+              f"{stats.channel_message_counts.get(cid, 0):>6} messages")
+
+
+def main(argv: list[str] | None = None) -> int:
+    commands = {"generate": _generate, "merge": _merge, "ls": _ls, "show": _show, "verify": _verify,
+                "inspect": _inspect}
+    return run_command(argv, USAGE, commands)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

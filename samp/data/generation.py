@@ -1,0 +1,286 @@
+"""Dataset generation: scenes planned in worker processes, sharded, resumable, merged into one dataset.
+
+The unit of work is a scene (`SceneJob`): draw it, compute its anchor grids, sample its problems, plan
+each with the expert and write `scene_NNNN.mcap` (atomically) with a small JSON sidecar of wall-clock
+planner times. Scene files collect in a work folder keyed by the spec's config hash,
+`<root>/<name>/.work/<hash16>/`, so:
+  * shard i of n does the scenes with index % n == i; shards can run anywhere and at any time (with a
+    shared file system they write side by side; otherwise copy their scene files together);
+  * a killed run loses only the scenes that were being planned: a rerun skips every finished file;
+  * `merge` checks that every scene of the spec is there and turns the folder into a dataset
+    (`samp.data.registry.finalize_dataset`), after which the work folder is removed.
+
+Wall-clock times go to the manifest, not into the MCAP files, so the data files, and with them the
+dataset id, depend only on the spec and seed (on one machine, as long as no problem hits the
+planner's time limit, whose outcome depends on the machine's load).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import shutil
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from samp.data.mcap_io import write_scene_file
+from samp.data.registry import FORMAT_VERSION, datasets_root, finalize_dataset
+from samp.data.spec import DatasetSpec, SceneJob, load_spec
+
+__all__ = ["GenerationError", "generate", "merge", "work_dir"]
+
+TIMING_KEYS = ("planning_time", "solve_time", "simplify_time")  # wall clock: manifest only
+SIDECAR = ".json"
+
+
+class GenerationError(ValueError):
+    """A spec that cannot be generated (e.g. its scenes leave no valid start), or missing shards."""
+
+
+class MergeBusy(GenerationError):
+    """Another process holds the merge lock of this work folder."""
+
+
+def work_dir(spec: DatasetSpec, root: Path | None = None) -> Path:
+    return (root or datasets_root()) / spec.name / ".work" / spec.config_hash()[:16]
+
+
+def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str) -> dict:
+    """The `samp.dataset` metadata record of a scene file: deterministic, no times or versions."""
+    return {"format_version": FORMAT_VERSION, "dataset": spec.name, "config_hash": spec.config_hash(),
+            "robot": spec.robot, "robot_asset_hash": asset_hash, "scene_index": job.index, "split": job.split,
+            "generator": job.generator, "scene_seed": job.seed}
+
+
+# ------------------------------------------------------------------------------------------ one scene
+_ROBOTS: dict[str, object] = {}  # per process: robots are loaded once
+_TICKS = None  # per worker process: queue of finished-problem ticks for the progress bar
+
+
+def _init_worker(ticks) -> None:
+    global _TICKS
+    _TICKS = ticks
+    torch.set_num_threads(1)
+
+
+def _robot(name: str):
+    from samp.robot import load_robot
+
+    if name not in _ROBOTS:
+        _ROBOTS[name] = load_robot(name, dtype=torch.float64)
+    return _ROBOTS[name]
+
+
+def _episode(result, index: int, kind: str, goal_pose) -> tuple[dict, dict]:
+    """PlanResult -> (episode record for the MCAP file, wall-clock times for the sidecar)."""
+    as_list = lambda a: None if a is None else np.asarray(a, dtype=np.float64).tolist()  # noqa: E731
+    stats = {k: v for k, v in result.stats.items() if k not in TIMING_KEYS}
+    record = {"episode": index, "success": bool(result.success), "reason": result.reason, "kind": kind,
+              "start": as_list(result.q_start), "goal": as_list(result.q_goal), "goal_pose": as_list(goal_pose),
+              "stats": stats}
+    return record, {k: float(result.stats.get(k, 0.0)) for k in TIMING_KEYS}
+
+
+def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
+    """Generate one scene file into `out_dir`; returns its sidecar record. Threads are pinned to one so
+    results do not depend on the number of workers."""
+    from samp.expert.planner import PlanResult, derive_seed, make_planner
+    from samp.expert.problems import sample_problems
+    from samp.scene.registry import scene_from_config
+
+    spec, out = load_spec(spec_dict), Path(out_dir)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    tick = tick or (lambda: _TICKS.put(1) if _TICKS is not None else None)
+    try:
+        robot, cfg = _robot(spec.robot), spec.expert_config()
+        where = f"dataset spec {spec.name!r}, scene {job.index} (generator {job.generator!r}, seed {job.seed})"
+        try:
+            scene = scene_from_config(spec.generator_config(job.generator), job.seed)
+        except ValueError as err:
+            raise GenerationError(f"{where}: {err}") from None
+        grids = {n: scene.anchor_grid(n, cache=False) for n in spec.resolutions}
+        episodes, timings, trajectories = [], [], []
+        with make_planner(robot, scene, cfg) as planner:
+            try:
+                problems = sample_problems(robot, scene, spec.trajectories_per_scene, derive_seed(job.seed, 1), cfg,
+                                           world=getattr(planner, "world", None))
+            except ValueError as err:
+                raise GenerationError(f"{where}: the scene cannot host valid planning problems: {err}. Change the "
+                                      "spec's generators or generator_overrides, or lower the expert's clearance") from None
+            for i, p in enumerate(problems):
+                if p.q_goal is None:
+                    result = PlanResult(False, None, p.reason, {"attempts": 0}, p.q_start)
+                else:
+                    result = planner.plan(p.q_start, p.q_goal, seed=derive_seed(job.seed, 2, i))
+                record, times = _episode(result, i, p.kind, p.goal_pose)
+                episodes.append(record)
+                timings.append(times)
+                if result.success:
+                    trajectories.append(result.trajectory)
+                tick()
+        sidecar = {"scene_index": job.index, "name": scene.name, "generator": job.generator, "split": job.split,
+                   "file": job.file, "episodes": len(episodes), "trajectories": len(trajectories),
+                   **{k: [t[k] for t in timings] for k in TIMING_KEYS}}
+        # The sidecar first: a scene counts as done when its MCAP file exists (renamed into place last).
+        _write_json(out / (job.file + SIDECAR), sidecar)
+        write_scene_file(out / job.file, scene, job.index, job.split, list(robot.joint_names), grids, episodes,
+                         trajectories, _file_metadata(spec, job, robot.asset_hash))
+        return sidecar
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
+    tmp.replace(path)
+
+
+# ------------------------------------------------------------------------------------------ shards
+def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shards: int = 1, workers: int = 1,
+             root: Path | None = None, progress: bool = True) -> Path | None:
+    """Generate the scenes of `shard` (None: all of them) with `workers` processes, resuming from any
+    finished scene files. When every scene of the spec is done, merge into a dataset and return its
+    folder; otherwise (a shard of several) return None."""
+    from tqdm.auto import tqdm
+
+    spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
+    if num_shards < 1 or (shard is not None and not 0 <= shard < num_shards):
+        raise ValueError(f"shard must be in [0, num_shards) with num_shards >= 1, got shard={shard} num_shards={num_shards}")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    work = work_dir(spec, root)
+    work.mkdir(parents=True, exist_ok=True)
+    _write_json(work / "spec.json", spec.resolved())
+    for stale in work.glob("*.tmp"):  # left by a killed run
+        stale.unlink()
+    jobs = [j for j in spec.scene_jobs() if shard is None or j.index % num_shards == shard]
+    todo = [j for j in jobs if not (work / j.file).is_file()]
+    label = f"{spec.name}" + ("" if shard is None else f" shard {shard}/{num_shards}")
+    if len(todo) < len(jobs):
+        print(f"{label}: resuming, {len(jobs) - len(todo)} of {len(jobs)} scenes already done in {work}")
+    per_scene = spec.trajectories_per_scene
+    bar = tqdm(total=len(todo) * per_scene, desc=label, unit="traj", disable=not progress, smoothing=0.05)
+    spec_dict = spec.resolved()
+    spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__}
+    try:
+        if workers == 1 or len(todo) <= 1:
+            for job in todo:
+                run_scene(spec_dict, job, str(work), tick=lambda: bar.update(1))
+        else:
+            _run_pool(spec_dict, todo, work, min(workers, len(todo)), bar)
+    finally:
+        bar.close()
+    missing = [j for j in spec.scene_jobs() if not (work / j.file).is_file()]
+    if missing:
+        print(f"{label}: done; {len(missing)} scenes of other shards are not finished yet "
+              f"(run `python -m samp.data merge +dataset={spec.name}` when they are)")
+        return None
+    try:
+        return merge(spec, root)
+    except MergeBusy:  # a shard finishing at the same time is merging
+        print(f"{label}: done; another process is merging the dataset")
+        return None
+
+
+def _run_pool(spec_dict: dict, todo: list[SceneJob], work: Path, workers: int, bar) -> None:
+    ctx = get_context("spawn")  # a clean interpreter per worker: no inherited torch or pybullet state
+    ticks = ctx.Manager().Queue()
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(ticks,)) as pool:
+        pending = {pool.submit(run_scene, spec_dict, job, str(work)) for job in todo}
+        try:
+            while pending:
+                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                _drain(ticks, bar)
+                for future in done:
+                    future.result()  # a failed scene stops the run; finished scenes stay on disk
+        except BaseException:
+            for future in pending:
+                future.cancel()
+            raise
+        _drain(ticks, bar)
+
+
+def _drain(ticks, bar) -> None:
+    while True:
+        try:
+            bar.update(ticks.get_nowait())
+        except queue.Empty:
+            return
+
+
+# ------------------------------------------------------------------------------------------ merge
+def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
+    """Join the finished scene files of every shard into one dataset; names the missing scenes if any."""
+    from samp.provenance import code_version, package_versions
+
+    spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
+    root = root or datasets_root()
+    work = work_dir(spec, root)
+    jobs = spec.scene_jobs()
+    missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
+    if missing:
+        raise GenerationError(f"cannot merge {spec.name!r}: {len(missing)} of {len(jobs)} scenes are not generated "
+                              f"yet (indices {missing[:20]}{' ...' if len(missing) > 20 else ''}) in {work}; run "
+                              f"`python -m samp.data generate +dataset={spec.name}` (or the missing shards) first")
+    lock = work / "merge.lock"
+    try:
+        os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        raise MergeBusy(f"{lock} exists: another process is merging {spec.name!r}. If none is (it was killed), "
+                        "delete the lock file and merge again") from None
+    sidecars = [json.loads((work / (j.file + SIDECAR)).read_text()) for j in jobs]
+    tmp = root / spec.name / f".tmp-{os.getpid()}-{time.time_ns()}"
+    tmp.mkdir(parents=True)
+    try:
+        for j in jobs:
+            _link_or_copy(work / j.file, tmp / j.file)
+        manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, _asset_hash(spec.robot), sidecars,
+                                  parents=[])
+        manifest.update(code_version=code_version(), versions=package_versions())
+        dest = finalize_dataset(tmp, spec.name, manifest, root)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        lock.unlink(missing_ok=True)
+        raise
+    shutil.rmtree(work, ignore_errors=True)
+    work_parent = work.parent
+    if work_parent.is_dir() and not any(work_parent.iterdir()):
+        work_parent.rmdir()
+    return dest
+
+
+def _asset_hash(robot: str) -> str:
+    from samp.robot import load_robot
+
+    return _ROBOTS[robot].asset_hash if robot in _ROBOTS else load_robot(robot).asset_hash
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def build_manifest(config: dict, config_hash: str, seed: int, asset_hash: str, sidecars: list[dict],
+                   parents: list[str]) -> dict:
+    """Everything a manifest records besides the file list, id, name, format version and time."""
+    scenes = sorted(sidecars, key=lambda s: s["scene_index"])
+    split = {s: [x["name"] for x in scenes if x["split"] == s] for s in ("train", "heldout")}
+    times = [t for s in scenes for t in s.get("planning_time", [])]
+    counts = {"scenes": len(scenes), "train_scenes": len(split["train"]), "heldout_scenes": len(split["heldout"]),
+              "episodes": sum(s["episodes"] for s in scenes), "trajectories": sum(s["trajectories"] for s in scenes)}
+    counts["failures"] = counts["episodes"] - counts["trajectories"]
+    return {"config": config, "config_hash": config_hash, "seed": seed,
+            "robot": {"name": config["robot"], "asset_hash": asset_hash}, "parents": parents, "counts": counts,
+            "splits": split, "scenes": scenes,
+            "planning_time": {"total_s": float(np.sum(times)) if times else 0.0,
+                              "mean_s": float(np.mean(times)) if times else 0.0}}

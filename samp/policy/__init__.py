@@ -1,0 +1,7 @@
+"""The SAMP motion policy: network (pure torch), losses, and (in system.py) its LightningModule."""
+
+from samp.policy.losses import LossConfig, collision_loss, config_loss, match_loss
+from samp.policy.network import PolicyConfig, SAMPNet, denormalize, normalize, sample_by_scene
+
+__all__ = ["LossConfig", "PolicyConfig", "SAMPNet", "collision_loss", "config_loss", "denormalize", "match_loss",
+           "normalize", "sample_by_scene"]

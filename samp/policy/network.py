@@ -1,0 +1,139 @@
+"""The SAMP policy network, in plain torch (DESIGN section 4, "Policy").
+
+Inputs per sample: the current and goal configurations (normalised to [-1, 1] by the joint limits), the
+scene's anchor grid, the M robot points posed at the current configuration, T_q(P), and the robot SDF
+at those points. Four branches meet in a fusion MLP that predicts the normalised joint step:
+
+    env      Phi_3D(grid) --grid_sample at T_q(P)--> (M, C) ++ robot SDF (M, 1) --flatten--> MLP_II -> 256
+    points   PointNet over (xyz, d_robot) of T_q(P): shared MLP, max over points             -> 256
+    config   MLP_I([q_t, q_g])                                                                -> 128
+    fusion   MLP_III(640) -> dq;  q_next = clamp(q_t + dq, -1, 1) in normalised coordinates
+
+Widths follow the authors' released code (about 3.1 M parameters with M = 1024, C = 4). `ablation`
+switches remove the point encoder or the environment branch for the paper's ablations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from samp.scene.grid import sample_grid
+
+__all__ = ["PolicyConfig", "SAMPNet", "denormalize", "normalize", "sample_by_scene"]
+
+
+@dataclass
+class PolicyConfig:
+    """Architecture of `SAMPNet` (`conf/model/samp_policy.yaml`)."""
+
+    dof: int = 7
+    num_points: int = 1024  # M, the robot points
+    channels: int = 4  # C of the 3D conv encoder
+    env_hidden: list[int] = field(default_factory=lambda: [512, 256])  # MLP_II after the flattened (M x (C + 1)) point features
+    point_hidden: list[int] = field(default_factory=lambda: [64, 128, 256])  # PointNet shared MLP; the last width is its feature size
+    config_hidden: list[int] = field(default_factory=lambda: [128])  # MLP_I over [q_t, q_g]
+    fusion_hidden: list[int] = field(default_factory=lambda: [512, 256, 128])  # MLP_III before the dof outputs
+    point_encoder: bool = True  # ablation: False drops the PointNet branch
+    env_encoder: bool = True  # ablation: False drops the environment branch (no grid at all)
+
+
+def normalize(q: torch.Tensor, limits: torch.Tensor) -> torch.Tensor:
+    """Radians -> [-1, 1] by the (n, 2) joint limits."""
+    lo, hi = limits[:, 0], limits[:, 1]
+    return 2 * (q - lo) / (hi - lo) - 1
+
+
+def denormalize(u: torch.Tensor, limits: torch.Tensor) -> torch.Tensor:
+    lo, hi = limits[:, 0], limits[:, 1]
+    return lo + (u + 1) * (hi - lo) / 2
+
+
+def sample_by_scene(volumes: torch.Tensor, scene_index: torch.Tensor, points: torch.Tensor, bounds) -> torch.Tensor:
+    """Trilinear values of per-scene volumes at each sample's points, without copying a volume per sample.
+
+    Args: volumes (S, C, n, n, n) indexed (x, y, z); scene_index (B,) into them; points (B, M, 3).
+    Returns: (B, C, M).
+    """
+    B, M, _ = points.shape
+    out = points.new_zeros(B, volumes.shape[1], M, dtype=volumes.dtype)
+    for s in scene_index.unique().tolist():
+        rows = (scene_index == s).nonzero()[:, 0]
+        vals = sample_grid(volumes[s:s + 1], points[rows].reshape(1, -1, 3), bounds)  # (1, C, k * M)
+        out = out.index_put((rows,), vals.reshape(-1, len(rows), M).transpose(0, 1))
+    return out
+
+
+def _mlp(sizes: list[int], last_activation: bool = True) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+        layers.append(nn.Linear(a, b))
+        if last_activation or i < len(sizes) - 2:
+            layers.append(nn.ELU())
+    return nn.Sequential(*layers)
+
+
+class EnvEncoder(nn.Module):
+    """Phi_3D: Conv3d(1 -> C, k 3, stride 2) + BatchNorm + ELU + MaxPool(2, stride 1). The feature
+    volume covers the same workspace bounds as the grid, so it is sampled with the grid's coordinates."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv3d(1, channels, 3, stride=2, padding=1), nn.BatchNorm3d(channels), nn.ELU(),
+                                 nn.MaxPool3d(2, stride=1))
+
+    def forward(self, grids: torch.Tensor) -> torch.Tensor:
+        """(S, n, n, n) grids indexed (x, y, z) -> (S, C, n', n', n') feature volumes, same index order."""
+        return self.net(grids[:, None])
+
+
+class SAMPNet(nn.Module):
+    """Predicts the next normalised configuration. Pure torch: no Lightning, no robot model inside."""
+
+    def __init__(self, cfg: PolicyConfig):
+        super().__init__()
+        self.cfg = cfg
+        M, C = cfg.num_points, cfg.channels
+        width = 0
+        if cfg.env_encoder:
+            self.env = EnvEncoder(C)
+            self.env_mlp = _mlp([M * (C + 1), *cfg.env_hidden])
+            width += cfg.env_hidden[-1]
+        if cfg.point_encoder:
+            self.point_mlp = _mlp([4, *cfg.point_hidden])
+            width += cfg.point_hidden[-1]
+        self.config_mlp = _mlp([2 * cfg.dof, *cfg.config_hidden])
+        width += cfg.config_hidden[-1]
+        self.fusion = _mlp([width, *cfg.fusion_hidden, cfg.dof], last_activation=False)
+
+    def encode_scenes(self, grids: torch.Tensor) -> torch.Tensor | None:
+        """(S, n, n, n) -> (S, C, n', n', n'); encode each distinct scene once and index per sample."""
+        return self.env(grids) if self.cfg.env_encoder else None
+
+    def forward(self, u_t: torch.Tensor, u_g: torch.Tensor, points: torch.Tensor, robot_sdf: torch.Tensor,
+                features: torch.Tensor | None, scene_index: torch.Tensor | None, bounds) -> torch.Tensor:
+        """One step.
+
+        Args:
+            u_t, u_g: (B, n) current and goal configurations, normalised.
+            points: (B, M, 3) robot points at u_t in the base frame (metres).
+            robot_sdf: (B, M) robot SDF at those points (metres).
+            features: (S, C, n', n', n') from `encode_scenes`; scene_index: (B,) into it.
+            bounds: the workspace bounds the grids span.
+        Returns:
+            (B, n) the next configuration, normalised and clamped to [-1, 1].
+        """
+        B, M, _ = points.shape
+        if M != self.cfg.num_points or u_t.shape[-1] != self.cfg.dof:
+            raise ValueError(f"SAMPNet was built for {self.cfg.num_points} points and {self.cfg.dof} joints; got "
+                             f"points {tuple(points.shape)} and q {tuple(u_t.shape)}")
+        parts = [self.config_mlp(torch.cat([u_t, u_g], dim=-1))]
+        if self.cfg.env_encoder:
+            env = sample_by_scene(features, scene_index, points, bounds).transpose(1, 2)  # (B, M, C)
+            parts.append(self.env_mlp(torch.cat([env, robot_sdf[..., None]], dim=-1).reshape(B, -1)))
+        if self.cfg.point_encoder:
+            parts.append(self.point_mlp(torch.cat([points, robot_sdf[..., None]], dim=-1)).amax(dim=1))
+        du = self.fusion(torch.cat(parts[::-1], dim=-1))
+        return (u_t + du).clamp(-1.0, 1.0)

@@ -5,8 +5,11 @@ waypoint as the goal. The dataset is opened once; every batch is gathered from c
 index (no per-sample decoding or Python objects), and the anchor grids of all scenes at the chosen n_e
 are held once in `grids` (S, n_e, n_e, n_e), indexed by each sample's scene.
 
-Training samples come from the training scenes; validation from the held-out scenes (a fixed, seeded
-subset of at most `val_samples`), or from the training scenes when the dataset holds out none.
+Splits are by scene or by trajectory, never by step (`val_split`): `heldout` validates on the held-out
+scenes (a fixed, seeded subset of at most `val_samples` steps); a number in (0, 1) validates on that
+fraction of the training scenes' trajectories instead. Training batches get Gaussian noise on q_t
+(`noise` radians, clamped to the joint limits), and are drawn from at most `scenes_per_batch` scenes each
+so that the policy's 3D convolution runs once per distinct scene of a batch (0: plain random batches).
 """
 
 from __future__ import annotations
@@ -20,13 +23,21 @@ __all__ = ["StepSamples", "TrajectoryDataModule"]
 
 
 class StepSamples(Dataset):
-    """Index i -> step (trajectory k, waypoint t). `__getitem__` takes a whole batch of indices."""
+    """Index i -> step (trajectory k, waypoint t). `__getitem__` takes a whole batch of indices.
 
-    def __init__(self, trajectories: torch.Tensor, traj_scene: torch.Tensor, rows: torch.Tensor):
+    With `noise` > 0, q_t gets Gaussian noise of that many radians (clamped to `limits`), drawn from a
+    seeded generator; q_{t+1} and the goal stay exact.
+    """
+
+    def __init__(self, trajectories: torch.Tensor, traj_scene: torch.Tensor, rows: torch.Tensor,
+                 noise: float = 0.0, limits: torch.Tensor | None = None, seed: int = 0):
         self.trajectories, self.traj_scene = trajectories, traj_scene
         steps = trajectories.shape[1] - 1
         self.k = rows.repeat_interleave(steps)
         self.t = torch.arange(steps).repeat(len(rows))
+        self.scene = traj_scene[self.k]
+        self.noise, self.limits = float(noise), limits
+        self.generator = torch.Generator().manual_seed(seed)
 
     def __len__(self) -> int:
         return len(self.k)
@@ -35,42 +46,75 @@ class StepSamples(Dataset):
         index = torch.as_tensor(index)
         k, t = self.k[index], self.t[index]
         traj = self.trajectories
-        return {"q": traj[k, t], "q_next": traj[k, t + 1], "q_goal": traj[k, -1], "scene": self.traj_scene[k],
+        q = traj[k, t]
+        if self.noise > 0:
+            q = q + self.noise * torch.randn(q.shape, generator=self.generator, dtype=q.dtype)
+            q = torch.minimum(torch.maximum(q, self.limits[:, 0]), self.limits[:, 1])
+        return {"q": q, "q_next": traj[k, t + 1], "q_goal": traj[k, -1], "scene": self.traj_scene[k],
                 "traj": k, "step": t}
 
 
 class _BatchIndices(Sampler):
-    """Yields whole batches of indices (shuffled with a seeded generator per epoch, or in order)."""
+    """Yields whole batches of indices: in order, shuffled, or shuffled within scenes and grouped so
+    that each batch holds at most `scenes_per_batch` distinct scenes. Seeded; a new order every epoch."""
 
-    def __init__(self, n: int, batch_size: int, shuffle: bool, seed: int, drop_last: bool):
-        self.n, self.batch_size, self.shuffle, self.seed, self.drop_last = n, batch_size, shuffle, seed, drop_last
+    def __init__(self, scene: torch.Tensor, batch_size: int, shuffle: bool, seed: int, drop_last: bool,
+                 scenes_per_batch: int = 0):
+        self.scene, self.n = scene, len(scene)
+        self.batch_size, self.shuffle, self.seed, self.drop_last = batch_size, shuffle, seed, drop_last
+        self.scenes_per_batch = scenes_per_batch
         self.epoch = 0
 
+    def _batches(self) -> list[torch.Tensor]:
+        g = torch.Generator().manual_seed(self.seed + self.epoch)
+        if not self.shuffle:
+            return list(torch.arange(self.n).split(self.batch_size))
+        if self.scenes_per_batch <= 0:
+            batches = list(torch.randperm(self.n, generator=g).split(self.batch_size))
+            return batches[:-1] if self.drop_last and len(batches[-1]) < self.batch_size else batches
+        # Shuffled chunks of one scene each, batch_size / scenes_per_batch long; every scenes_per_batch
+        # consecutive chunks form a batch. Only a scene's last chunk can be short, so batches are full
+        # but for a few slightly smaller ones, and none spans more than scenes_per_batch scenes.
+        chunk = max(1, -(-self.batch_size // self.scenes_per_batch))
+        chunks = []
+        for s in self.scene.unique():
+            rows = (self.scene == s).nonzero()[:, 0]
+            chunks += list(rows[torch.randperm(len(rows), generator=g)].split(chunk))
+        chunks = [chunks[i] for i in torch.randperm(len(chunks), generator=g).tolist()]
+        k = self.scenes_per_batch
+        return [torch.cat(chunks[i:i + k]) for i in range(0, len(chunks), k)]
+
     def __iter__(self):
-        if self.shuffle:
-            order = torch.randperm(self.n, generator=torch.Generator().manual_seed(self.seed + self.epoch))
-            self.epoch += 1
-        else:
-            order = torch.arange(self.n)
-        stop = self.n - self.n % self.batch_size if self.drop_last else self.n
-        for i in range(0, stop, self.batch_size):
-            yield order[i:i + self.batch_size]
+        batches = self._batches()
+        self.epoch += int(self.shuffle)
+        yield from batches
 
     def __len__(self) -> int:
-        return self.n // self.batch_size if self.drop_last else -(-self.n // self.batch_size)
+        return len(self._batches())
 
 
 class TrajectoryDataModule(pl.LightningDataModule):
     """Args:
-        dataset: a reference (`name`, `name@id` or a folder). n_e: the grid resolution (stored in the dataset).
-        batch_size: samples per batch (the paper: 50). val_samples: held-out steps per validation pass.
+        dataset: a reference (`name`, `name@id` or a folder); root: the registry folder (None: default).
+        n_e: the grid resolution (must be stored in the dataset).
+        batch_size: samples per batch (the paper: 50). scenes_per_batch: distinct scenes per training batch
+            (0: plain random batches). noise: std of the Gaussian noise on training q_t (radians).
+        val_split: "heldout" (validate on the held-out scenes) or a fraction in (0, 1) of the training
+            scenes' trajectories. val_samples: steps per validation pass (a fixed, seeded subset).
         max_trajectories: use at most this many training trajectories (None: all), for quick runs.
     """
 
-    def __init__(self, dataset: str, n_e: int = 40, batch_size: int = 50, val_samples: int = 2000,
+    def __init__(self, dataset: str, n_e: int = 40, batch_size: int = 50, scenes_per_batch: int = 2,
+                 noise: float = 0.03, val_split: str | float = "heldout", val_samples: int = 2000,
                  max_trajectories: int | None = None, seed: int = 0, root: str | None = None):
         super().__init__()
+        if not (val_split == "heldout" or (isinstance(val_split, (int, float)) and 0 < val_split < 1)):
+            raise ValueError(f"val_split must be 'heldout' or a fraction in (0, 1), got {val_split!r}")
+        if batch_size < 1 or scenes_per_batch < 0 or noise < 0:
+            raise ValueError(f"batch_size >= 1, scenes_per_batch >= 0 and noise >= 0 expected; got {batch_size}, "
+                             f"{scenes_per_batch}, {noise}")
         self.ref, self.n_e, self.batch_size, self.val_samples = dataset, int(n_e), int(batch_size), int(val_samples)
+        self.scenes_per_batch, self.noise, self.val_split = int(scenes_per_batch), float(noise), val_split
         self.max_trajectories, self.seed, self.root = max_trajectories, int(seed), root
         self.ds = None
 
@@ -80,6 +124,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
         from pathlib import Path
 
         from samp.data.dataset import open_dataset
+        from samp.robot import load_robot_config
 
         ds = open_dataset(self.ref, Path(self.root) if self.root else None)
         if self.n_e not in ds.resolutions:
@@ -87,37 +132,45 @@ class TrajectoryDataModule(pl.LightningDataModule):
                              f"data.n_e to one of them or regenerate the dataset with n_e in its spec's resolutions")
         if len(ds) == 0:
             raise ValueError(f"dataset {ds.name}@{ds.id} holds no successful trajectories to train on")
-        self.ds = ds
-        self.dataset_id = f"{ds.name}@{ds.id}"
+        self.ds, self.dataset_id = ds, f"{ds.name}@{ds.id}"
+        self.robot_name = ds.manifest["robot"]["name"]
+        self.robot_asset_hash = ds.manifest["robot"]["asset_hash"]
         self.bounds = ds.scenes[0].bounds
         if any(s.bounds != self.bounds for s in ds.scenes):
             raise ValueError(f"dataset {self.dataset_id}: scenes with different workspace bounds cannot share a policy")
         self.grids = ds.grids(self.n_e)  # (S, n, n, n) float32
         self.trajectories = ds.trajectories.float()
+        cfg = load_robot_config(self.robot_name)
+        limits = torch.tensor([cfg.lower, cfg.upper], dtype=torch.float32).T
+        g = torch.Generator().manual_seed(self.seed)
         train = torch.from_numpy(np.flatnonzero(ds.traj_split == "train"))
-        held = torch.from_numpy(np.flatnonzero(ds.traj_split == "heldout"))
+        if self.val_split == "heldout":
+            val = torch.from_numpy(np.flatnonzero(ds.traj_split == "heldout"))
+            if len(val) == 0:
+                raise ValueError(f"dataset {self.dataset_id} holds out no scenes; use data.val_split=0.1 to validate "
+                                 "on a fraction of the training trajectories")
+        else:
+            train = train[torch.randperm(len(train), generator=g)]
+            cut = max(1, int(round(self.val_split * len(train))))
+            train, val = train[cut:].sort().values, train[:cut].sort().values
         if self.max_trajectories is not None:
             train = train[: int(self.max_trajectories)]
         if len(train) == 0:
-            raise ValueError(f"dataset {self.dataset_id} has no training trajectories")
-        self.train_samples = StepSamples(self.trajectories, ds.traj_scene, train)
-        val_rows = held if len(held) else train
-        val_all = StepSamples(self.trajectories, ds.traj_scene, val_rows)
-        pick = torch.randperm(len(val_all), generator=torch.Generator().manual_seed(self.seed))[: self.val_samples]
-        self.val_indices = pick.sort().values
-        self.val_samples_set = val_all
-
-    def _loader(self, samples: Dataset, n: int, shuffle: bool, indices: torch.Tensor | None = None) -> DataLoader:
-        sampler = _BatchIndices(n, self.batch_size, shuffle, self.seed, drop_last=shuffle)
-        if indices is not None:
-            samples = _Subset(samples, indices)
-        return DataLoader(samples, sampler=sampler, batch_size=None, num_workers=0)
+            raise ValueError(f"dataset {self.dataset_id} leaves no training trajectories")
+        self.train_samples = StepSamples(self.trajectories, ds.traj_scene, train, self.noise, limits, self.seed)
+        self.val_all = StepSamples(self.trajectories, ds.traj_scene, val)
+        pick = torch.randperm(len(self.val_all), generator=g)[: self.val_samples]
+        self.val_set = _Subset(self.val_all, pick.sort().values)
 
     def train_dataloader(self) -> DataLoader:
-        return self._loader(self.train_samples, len(self.train_samples), shuffle=True)
+        sampler = _BatchIndices(self.train_samples.scene, self.batch_size, True, self.seed, drop_last=True,
+                                scenes_per_batch=self.scenes_per_batch)
+        return DataLoader(self.train_samples, sampler=sampler, batch_size=None, num_workers=0)
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader(self.val_samples_set, len(self.val_indices), shuffle=False, indices=self.val_indices)
+        scene = self.val_all.scene[self.val_set.indices]
+        sampler = _BatchIndices(scene, self.batch_size, False, self.seed, drop_last=False)
+        return DataLoader(self.val_set, sampler=sampler, batch_size=None, num_workers=0)
 
 
 class _Subset(Dataset):

@@ -10,6 +10,10 @@ and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites
     data    expert trajectories per second on --workers processes and the planner's success rate per
             scene generator; open_dataset (decoded waypoints per second) and grid decoding against the
             same arrays read from a .npz file
+    eval    rollouts per second of the batched engine (--problems problems over two scenes, grids at --n-e,
+            the straight-line policy) and of a full evaluation with pybullet checks; baseline: one problem
+            at a time. The policy's per-problem solution time against the expert's planning time on
+            --expert-problems of the same problems
 """
 
 from __future__ import annotations
@@ -249,6 +253,80 @@ def data(args) -> tuple[dict, list[list]]:
     return metrics, [["what", "samp", "baseline", "ratio"], *rows]
 
 
+@suite
+def eval(args) -> tuple[dict, list[list]]:  # noqa: A001 (the suite's name; shadows the builtin here only)
+    """Batched rollouts against one problem at a time, and the policy's solution time against the expert's."""
+    from samp.eval import Problem, RolloutConfig, StraightLinePolicy, evaluate, rollout
+    from samp.expert import ExpertPlanner, load_expert_config, sample_problems
+    from samp.robot import load_robot
+    from samp.scene import generate_scene
+
+    device = torch.device(args.device)
+    exact = load_robot(args.robot, dtype=torch.float64)
+    scenes = [generate_scene("tabletop", seed=0), generate_scene("shelf", seed=1)]
+    problems, per_scene = [], -(-args.problems // len(scenes))
+    for i, scn in enumerate(scenes):  # start/goal pairs as the expert samples them; no planning needed
+        drawn = sample_problems(exact, scn, per_scene + 5, seed=i, cfg=load_expert_config())
+        problems += [Problem(scn, p.q_start, p.q_goal, split="train", robot=exact.name)
+                     for p in drawn if p.q_goal is not None][:per_scene]
+    problems = problems[:args.problems]
+    grids = {id(s): s.anchor_grid(args.n_e) for s in scenes}  # computed once (disk-cached), as a dataset's
+    source = lambda p, n_e: grids[id(p.scene)]  # noqa: E731
+    policy = StraightLinePolicy(load_robot(args.robot, dtype=torch.float32).to(device), n_e=args.n_e)
+    batched_cfg, single_cfg = RolloutConfig(), RolloutConfig(batch_size=1)
+
+    def median_time(fn, repeats: int = 3):
+        """(median seconds, last result) over `repeats` calls: the machine may be shared."""
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            out = fn()
+            times.append(time.perf_counter() - t0)
+        return statistics.median(times), out
+
+    rollout(policy, problems[:4], batched_cfg, source)  # warm-up
+    t_batched, batched = median_time(lambda: rollout(policy, problems, batched_cfg, source))
+    t_single, single = median_time(lambda: rollout(policy, problems, single_cfg, source))
+    t_full, full = median_time(lambda: evaluate(policy, problems, batched_cfg, grids=source))
+    t_full_single, _ = median_time(lambda: evaluate(policy, problems, single_cfg, grids=source))
+
+    subset = problems[:args.expert_problems]
+    expert_times = []
+    for scn in scenes:
+        mine = [p for p in subset if p.scene is scn]
+        if mine:
+            with ExpertPlanner(exact, scn) as planner:
+                expert_times += [planner.plan(p.q_start, p.q_goal, seed=0).stats["planning_time"] for p in mine]
+    policy_times = [r.solution_time for r in single[:len(subset)]]
+    steps = [len(r.trajectory) - 1 for r in batched]
+    m = full["metrics"]["all"]
+    step_batched = statistics.mean(t for r in batched for t in r.step_times)
+    step_single = statistics.mean(t for r in single for t in r.step_times)
+    n = len(problems)
+    metrics = {"problems": n, "n_e": args.n_e, "steps_mean": statistics.mean(steps),
+               "rollout/batched_per_s": n / t_batched, "rollout/single_per_s": n / t_single,
+               "rollout/speedup": t_single / t_batched, "evaluate/batched_per_s": n / t_full,
+               "evaluate/single_per_s": n / t_full_single, "evaluate/speedup": t_full_single / t_full,
+               "step/batched_ms": 1e3 * step_batched, "step/single_ms": 1e3 * step_single,
+               "solution/policy_single_s": statistics.mean(policy_times),
+               "solution/policy_batched_s": statistics.mean(r.solution_time for r in batched),
+               "solution/expert_s": statistics.mean(expert_times),
+               "solution/expert_vs_policy": statistics.mean(expert_times) / statistics.mean(policy_times),
+               "straight/success_rate": m["success_rate"], "straight/collision_rate": m["collision_rate"]}
+    rows = [[f"rollouts ({n} problems, n_e={args.n_e}, {statistics.mean(steps):.0f} steps avg)",
+             f"{n / t_batched:.1f}/s batched", f"{n / t_single:.1f}/s one at a time", f"{t_single / t_batched:.1f}x"],
+            ["rollouts + pybullet checks (evaluate)", f"{n / t_full:.1f}/s batched", f"{n / t_full_single:.1f}/s one at a time",
+             f"{t_full_single / t_full:.1f}x"],
+            ["policy step call", f"{1e3 * step_batched:.2f} ms for B<={n}", f"{1e3 * step_single:.2f} ms for B=1",
+             f"{step_single * n / step_batched:.1f}x per problem"],
+            [f"solution time, {len(subset)} problems", f"{statistics.mean(policy_times) * 1e3:.1f} ms policy (B=1)",
+             f"{statistics.mean(expert_times):.3f} s expert planning",
+             f"{statistics.mean(expert_times) / statistics.mean(policy_times):.0f}x"],
+            ["straight-line policy (no collision awareness)", f"success {m['success_rate']:.0%}",
+             f"collision {m['collision_rate']:.0%}", ""]]
+    return metrics, [["what", "samp", "baseline", "ratio"], *rows]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("suite", choices=sorted(SUITES))
@@ -261,6 +339,9 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="data: worker processes for expert generation")
     ap.add_argument("--scenes", type=int, default=4, help="data: scenes generated (one held out)")
     ap.add_argument("--trajectories", type=int, default=25, help="data: problems per scene")
+    ap.add_argument("--problems", type=int, default=100, help="eval: problems rolled out (over two scenes)")
+    ap.add_argument("--n-e", type=int, default=100, help="eval: anchors per axis of the grids handed to the policy")
+    ap.add_argument("--expert-problems", type=int, default=10, help="eval: problems the expert plans afresh")
     args = ap.parse_args(argv)
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         ap.error("--device cuda was asked for but torch sees no CUDA device")

@@ -103,7 +103,7 @@ def write_dataset(ds: Dataset, name: str | None = None, root: Path | None = None
     from samp.data.generation import build_manifest
     from samp.provenance import code_version, package_versions
 
-    name, root = name or ds.name, root or datasets_root()
+    name, root = name or ds.name, (Path(root) if root else datasets_root())
     tmp = root / name / f".tmp-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir(parents=True)
     try:

@@ -47,8 +47,8 @@ class MergeBusy(GenerationError):
     """Another process holds the merge lock of this work folder."""
 
 
-def work_dir(spec: DatasetSpec, root: Path | None = None) -> Path:
-    return (root or datasets_root()) / spec.name / ".work" / spec.config_hash()[:16]
+def work_dir(spec: DatasetSpec, root: Path | str | None = None) -> Path:
+    return Path(root or datasets_root()) / spec.name / ".work" / spec.config_hash()[:16]
 
 
 def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str) -> dict:
@@ -222,7 +222,7 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
     from samp.provenance import code_version, package_versions
 
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
-    root = root or datasets_root()
+    root = Path(root) if root else datasets_root()
     work = work_dir(spec, root)
     jobs = spec.scene_jobs()
     missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]

@@ -52,7 +52,7 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
     If a dataset with the same id exists, its content is identical by construction: `tmp` is removed
     and the existing folder returned, so nothing is overwritten.
     """
-    root = root or datasets_root()
+    root = Path(root) if root else datasets_root()
     files = {p.relative_to(tmp).as_posix(): {"size": p.stat().st_size, "sha256": file_sha256(p)}
              for p in _data_files(tmp)}
     if not files:
@@ -100,7 +100,7 @@ def read_manifest(folder: Path, check_sizes: bool = True) -> dict:
 
 def list_datasets(root: Path | None = None) -> list[dict]:
     """Every finished dataset under `root`: manifests (without the file lists) plus their paths."""
-    root = root or datasets_root()
+    root = Path(root) if root else datasets_root()
     out = []
     for manifest_path in sorted(root.glob(f"*/*/{MANIFEST}")):
         try:
@@ -113,7 +113,7 @@ def list_datasets(root: Path | None = None) -> list[dict]:
 
 def resolve_ref(ref: str | Path, root: Path | None = None) -> Path:
     """`name` (newest), `name@id` (an id prefix is enough when unique) or a folder path -> the dataset folder."""
-    root = root or datasets_root()
+    root = Path(root) if root else datasets_root()
     path = Path(ref)
     if (path / MANIFEST).is_file():
         return path

@@ -37,7 +37,7 @@ class Robot(nn.Module):
 
     Attributes:
         joint_names: (n,) arm joints, the columns of q.
-        joint_limits: (n, 2) buffer, radians.
+        joint_limits: (n, 2) buffer, radians, float64 whatever the robot's dtype (exact config values).
         points: (M, 3) buffer, robot points in their link frames.
         point_links: (M,) buffer, index into `point_link_names`.
         point_shells: (M,) buffer, index into `cfg.points.offsets`.
@@ -151,6 +151,11 @@ class Robot(nn.Module):
         device, dtype, *_ = torch._C._nn._parse_to(*args, **kwargs)
         super().to(*args, **kwargs)
         self.chain = self._set_chain(dtype=dtype or self.chain.dtype, device=device or self.chain.device)
+        # Limits and home stay float64 from the config: rounded to float32, a configuration exactly at a
+        # limit (as expert goals often are) would read as outside it.
+        self.joint_limits = torch.tensor([self.cfg.lower, self.cfg.upper], dtype=torch.float64,
+                                         device=self.points.device).T.contiguous()
+        self.home = torch.tensor(self.cfg.home, dtype=torch.float64, device=self.points.device)
         return self
 
     def _set_chain(self, dtype: torch.dtype, device) -> pk.Chain:

@@ -68,7 +68,12 @@ def test_to_moves_chain_and_buffers(robots, dtype):
     from samp.robot import load_robot
 
     robot = load_robot("panda", dtype=dtype)
-    assert robot.points.dtype == dtype and robot.joint_limits.dtype == dtype
+    assert robot.points.dtype == dtype
+    # Limits stay exact float64: a configuration exactly at a limit must not read as outside it.
+    cfg = robot.cfg
+    assert torch.equal(robot.joint_limits, torch.tensor([cfg.lower, cfg.upper], dtype=torch.float64).T)
+    round_trip = load_robot("panda", dtype=dtype).to(torch.float32).to(torch.float64)
+    assert torch.equal(round_trip.home, torch.tensor(cfg.home, dtype=torch.float64))
     q = random_configurations(robots["panda"], 5, seed=3)
     got = robot.transform_points(q.to(dtype)).double()
     want = robots["panda"].transform_points(q)

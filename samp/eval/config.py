@@ -1,0 +1,123 @@
+"""Evaluation settings as data: the rollout's definitions (`RolloutConfig`) and the CLI's (`EvalConfig`,
+the schema of `conf/eval.yaml`). Radians, metres, seconds; orientation tolerance in degrees."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError, ValidationError
+
+__all__ = ["EvalConfig", "RolloutConfig", "load_eval_config", "rollout_config", "tolerance_label"]
+
+
+@dataclass
+class RolloutConfig:
+    """How a rollout runs and what counts as reaching the goal (DESIGN section 4)."""
+
+    max_steps: int = 150  # policy steps at most
+    position_tolerance: float = 0.02  # reached: end-effector position error below this (m) ...
+    orientation_tolerance: float = 15.0  # ... and orientation error below this (degrees); the rollout stops there
+    report_tolerances: list[float] = field(default_factory=lambda: [0.01])  # also judged on the final state (m)
+    substep_resolution: float = 0.02  # collision sub-steps: joint-space Euclidean spacing (rad), as the expert's
+    stall_threshold: float = 1e-3  # a step moving less than this (rad, Euclidean) counts as still ...
+    stall_steps: int = 10  # ... and this many still steps in a row end the rollout as stalled
+    batch_size: int | None = None  # problems rolled out together (None: a whole split at once)
+
+    def tolerances(self) -> list[float]:
+        """Every position tolerance reported, the stopping one first, without repeats."""
+        return list(dict.fromkeys([self.position_tolerance, *self.report_tolerances]))
+
+
+@dataclass
+class EvalConfig:
+    """`python -m samp.eval`: which planner on which problems, where the results go, and the rollout."""
+
+    run: str | None = None  # a run folder: evaluate its policy checkpoint (best.ckpt, else last.ckpt)
+    planner: str | None = None  # without a run: expert | straight
+    dataset: str | None = None  # dataset reference (name, name@id, folder); default: the run's dataset
+    root: str | None = None  # datasets folder (default: datasets/ or $SAMP_DATASETS_DIR)
+    split: str = "both"  # train | heldout | both (reported separately)
+    problems: int | None = 100  # per split, fixed by seed (null: every trajectory of the split)
+    seed: int = 0
+    out: str | None = None  # output folder; default RUN/eval, or runs/eval/PLANNER_DATASET without a run
+    overwrite: bool = False  # replace the files of an earlier evaluation in `out`
+    n_e: int | None = None  # grid resolution handed to the policy (null: the policy's own)
+    compare_expert: bool = True  # also evaluate the expert's stored trajectories on the same problems
+    expert_mode: str = "replay"  # replay (stored trajectories and times) | plan (plan afresh with OMPL)
+    straight_max_step: float = 0.05  # the straight-line baseline's step (rad)
+    record: bool = True  # write recording.rrd
+    record_rollouts: int = 10  # rollouts drawn with robot meshes and points (the others as paths only)
+    record_points: int = 256  # robot points drawn per step, coloured by their environment distance
+    max_steps: int = 150
+    position_tolerance: float = 0.02
+    orientation_tolerance: float = 15.0
+    report_tolerances: list[float] = field(default_factory=lambda: [0.01])
+    substep_resolution: float = 0.02
+    stall_threshold: float = 1e-3
+    stall_steps: int = 10
+    batch_size: int | None = None
+
+    def rollout(self) -> RolloutConfig:
+        names = {f.name for f in fields(RolloutConfig)}
+        return rollout_config({k: v for k, v in asdict(self).items() if k in names})
+
+
+def tolerance_label(tolerance: float) -> str:
+    """0.02 -> "2cm", 0.005 -> "0.5cm": metric-name suffixes."""
+    return f"{tolerance * 100:g}cm"
+
+
+def _require(ok: bool, key: str, expected: str, got) -> None:
+    if not ok:
+        raise ValueError(f"eval config: {key} must be {expected}, got {got!r}")
+
+
+def _check_rollout(c: RolloutConfig) -> None:
+    _require(isinstance(c.max_steps, int) and c.max_steps >= 1, "max_steps", "an integer >= 1", c.max_steps)
+    for key in ("position_tolerance", "substep_resolution", "stall_threshold"):
+        v = getattr(c, key)
+        _require(isinstance(v, (int, float)) and math.isfinite(v) and v > 0, key, "a positive number", v)
+    _require(0 < c.orientation_tolerance <= 180, "orientation_tolerance", "in (0, 180] degrees", c.orientation_tolerance)
+    _require(all(t > 0 for t in c.report_tolerances), "report_tolerances", "positive metres", c.report_tolerances)
+    _require(c.stall_steps >= 1, "stall_steps", ">= 1", c.stall_steps)
+    _require(c.batch_size is None or c.batch_size >= 1, "batch_size", "null or >= 1", c.batch_size)
+
+
+def _merge(schema, raw, what: str):
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(schema), raw)
+    except (ConfigKeyError, ValidationError) as err:
+        first = str(getattr(err, "msg", err)).splitlines()[0]
+        valid = ", ".join(f.name for f in fields(schema))
+        raise ValueError(f"invalid {what}: {first} (key {err.full_key!r}). Valid keys: {valid}") from None
+    return OmegaConf.to_object(merged)
+
+
+def rollout_config(source: RolloutConfig | dict | DictConfig | None = None) -> RolloutConfig:
+    """A validated `RolloutConfig` from itself, a mapping of some of its keys, or None (defaults)."""
+    if isinstance(source, RolloutConfig):
+        cfg = source
+    else:
+        cfg = _merge(RolloutConfig, OmegaConf.create({} if source is None else source), "rollout config")
+    _check_rollout(cfg)
+    return cfg
+
+
+def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
+    """Re-merge a composed config strictly against `EvalConfig`: a key added with `+key=...` that the
+    schema does not know is refused with the valid keys (Hydra alone would accept it)."""
+    raw = OmegaConf.create(raw) if isinstance(raw, dict) else raw
+    cfg: EvalConfig = _merge(EvalConfig, raw, "eval config")
+    _require(cfg.split in ("train", "heldout", "both"), "split", "train | heldout | both", cfg.split)
+    _require(cfg.problems is None or cfg.problems >= 1, "problems", "null or >= 1", cfg.problems)
+    _require(cfg.expert_mode in ("replay", "plan"), "expert_mode", "replay | plan", cfg.expert_mode)
+    _require(cfg.planner in (None, "expert", "straight"), "planner", "expert | straight (or give run=RUN_DIR)",
+             cfg.planner)
+    _require(cfg.record_rollouts >= 0 and cfg.record_points >= 1, "record_rollouts / record_points", ">= 0 / >= 1",
+             (cfg.record_rollouts, cfg.record_points))
+    _require(cfg.n_e is None or cfg.n_e >= 2, "n_e", "null or an integer >= 2", cfg.n_e)
+    cfg.rollout()  # validates the rollout keys
+    return cfg

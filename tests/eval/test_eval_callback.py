@@ -1,0 +1,93 @@
+"""EvalCallback: rollouts every k epochs during training, eval/* metrics logged, best.ckpt by success."""
+
+from __future__ import annotations
+
+import pytest
+import pytorch_lightning as pl
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from samp.eval import EvalCallback, StraightLinePolicy, evaluate
+
+
+class _Still:
+    """Never moves: success 0 on every problem."""
+
+    name, n_e = "still", None
+
+    def __init__(self, robot):
+        self.robot = robot
+
+    def step(self, q, q_goal, env):
+        return q.clone()
+
+
+class TinySystem(pl.LightningModule):
+    """A module whose policy is the straight line on odd epochs and a still policy on even ones, so the
+    success rate goes 0 -> s -> 0 and the best checkpoint must be the one of epoch 1."""
+
+    def __init__(self, robot):
+        super().__init__()
+        self.robot = robot
+        self.w = torch.nn.Parameter(torch.ones(3))
+
+    def step_policy(self):
+        return StraightLinePolicy(self.robot) if self.current_epoch % 2 == 1 else _Still(self.robot)
+
+    def training_step(self, batch, _):
+        return ((self.w * batch[0]) ** 2).mean()
+
+    def validation_step(self, batch, _):
+        self.log("val/loss", ((self.w * batch[0]) ** 2).mean())
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.01)
+
+    def train_dataloader(self):
+        return DataLoader(TensorDataset(torch.randn(4, 3)), batch_size=2)
+
+    def val_dataloader(self):
+        return DataLoader(TensorDataset(torch.randn(4, 3)), batch_size=2)
+
+
+def _trainer(tmp_path, callback, epochs: int) -> pl.Trainer:
+    return pl.Trainer(max_epochs=epochs, limit_train_batches=1, limit_val_batches=1, logger=False,
+                      enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+                      default_root_dir=tmp_path, callbacks=[callback], accelerator="cpu", num_sanity_val_steps=0)
+
+
+def test_the_callback_logs_eval_metrics_and_keeps_the_best_checkpoint(tiny_problems, panda, tmp_path):
+    _, problems = tiny_problems
+    expected = evaluate(StraightLinePolicy(panda), problems)["metrics"]
+    assert 0 < expected["all"]["success_rate"] < 1, "the test needs a success rate between the extremes"
+    callback = EvalCallback(problems=problems, every_k_epochs=1)
+    trainer = _trainer(tmp_path, callback, epochs=3)
+    trainer.fit(TinySystem(panda))
+    scores = [h["eval/success_rate"] for h in callback.history]
+    assert scores == [0.0, expected["all"]["success_rate"], 0.0], scores
+    assert callback.history[1]["eval/heldout/success_rate"] == expected["heldout"]["success_rate"]
+    assert callback.history[1]["eval/collision_rate"] == expected["all"]["collision_rate"]
+    assert "eval/success_rate" in trainer.callback_metrics, "metrics go through pl_module.log"
+    best = torch.load(tmp_path / "checkpoints" / "best.ckpt", weights_only=False)
+    assert best["epoch"] == 1, f"best.ckpt should be from epoch 1 (the best success), got epoch {best['epoch']}"
+    state = next(v for k, v in best["callbacks"].items() if "EvalCallback" in k)
+    assert state["best"] == expected["all"]["success_rate"]
+
+
+def test_the_callback_runs_every_k_epochs_only(tiny_problems, panda, tmp_path):
+    callback = EvalCallback(problems=tiny_problems[1][:2], every_k_epochs=2, save_best=False)
+    _trainer(tmp_path, callback, epochs=3).fit(TinySystem(panda))
+    assert [h["epoch"] for h in callback.history] == [1]
+    assert not (tmp_path / "checkpoints").exists()
+
+
+def test_a_module_without_step_policy_or_a_dataset_is_refused(tiny_problems, tmp_path):
+    with pytest.raises(ValueError, match="give dataset=REF"):
+        EvalCallback(problems=8)
+
+    class NoPolicy(TinySystem):
+        step_policy = None
+
+    callback = EvalCallback(problems=tiny_problems[1][:1])
+    with pytest.raises(TypeError, match="step_policy"):
+        _trainer(tmp_path, callback, epochs=1).fit(NoPolicy(None))

@@ -1,0 +1,151 @@
+"""`python -m samp.eval`: the files it writes, run folders, and clear errors on bad input (exit code 2)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import types
+
+import pytest
+
+from samp.eval.__main__ import main
+from samp.eval.names import METRICS_JSON, METRICS_MD, PROBLEMS_JSONL, RECORDING_RRD
+
+
+def _run_folder(tmp_path, dataset, robot="panda", asset_hash=None, checkpoint=True):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "run.json").write_text(json.dumps({"status": "completed", "dataset": str(dataset),
+                                              "robot": {"name": robot, "asset_hash": asset_hash}}))
+    if checkpoint:
+        (run / "checkpoints" / "last.ckpt").write_bytes(b"not a real checkpoint")
+    return run
+
+
+class _Calls(list):
+    """The fake package's load_policy calls; `.module` is the package."""
+
+
+@pytest.fixture
+def fake_policy_package(monkeypatch, panda):
+    """A stand-in for samp.policy: its load_policy returns the straight-line baseline (for the robot
+    named by `calls.robot`, panda by default)."""
+    from samp.eval import StraightLinePolicy
+
+    calls = _Calls()
+    module = types.ModuleType("samp.policy")
+
+    def load_policy(checkpoint, run_dir):
+        calls.append((checkpoint, run_dir))
+        return StraightLinePolicy(getattr(load_policy, "robot", panda))
+
+    module.load_policy = load_policy
+    monkeypatch.setitem(sys.modules, "samp.policy", module)
+    calls.module = module
+    return calls
+
+
+def _error(capsys) -> str:
+    return capsys.readouterr().err
+
+
+def test_cli_evaluates_the_expert_and_writes_its_files(tiny_eval, tmp_path, capsys):
+    folder, _ = tiny_eval
+    out = tmp_path / "expert"
+    assert main(["planner=expert", f"dataset={folder}", f"out={out}", "record_rollouts=2"]) == 0
+    printed = capsys.readouterr().out
+    assert "| expert | heldout | 3 |" in printed and "| expert | train | 3 |" in printed
+    for name in (METRICS_JSON, METRICS_MD, PROBLEMS_JSONL, RECORDING_RRD):
+        assert (out / name).is_file(), f"{name} not written"
+    report = json.loads((out / METRICS_JSON).read_text())
+    for split in ("train", "heldout"):
+        assert report["metrics"][split]["success_rate"] == 1.0 and report["metrics"][split]["collision_rate"] == 0.0
+    assert report["expert"] is None, "the expert is not compared with itself"
+    records = [json.loads(line) for line in (out / PROBLEMS_JSONL).read_text().splitlines()]
+    assert len(records) == 6 and all(len(r["trajectory"]) == 50 for r in records)
+
+
+def test_cli_evaluates_a_run_and_the_expert_beside_it(tiny_eval, tmp_path, capsys, fake_policy_package, panda):
+    folder, _ = tiny_eval
+    run = _run_folder(tmp_path, folder, asset_hash=panda.asset_hash)
+    assert main([f"run={run}", "split=heldout", "problems=2", "record=false"]) == 0, _error(capsys)
+    assert fake_policy_package == [(run / "checkpoints" / "last.ckpt", run)]
+    report = json.loads((run / "eval" / METRICS_JSON).read_text())
+    assert report["planner"] == "straight" and report["problems"] == {"heldout": 2}
+    assert report["expert"]["heldout"]["success_rate"] == 1.0
+    assert report["metrics"]["heldout"]["reach_rate"] == 1.0, "the straight line reaches every goal"
+    records = [json.loads(line) for line in (run / "eval" / PROBLEMS_JSONL).read_text().splitlines()]
+    assert sorted(r["planner"] for r in records) == ["expert", "expert", "straight", "straight"]
+    assert not (run / "eval" / RECORDING_RRD).exists()
+    assert main([f"run={run}", "split=heldout", "problems=2", "record=false"]) == 2
+    assert "overwrite=true" in _error(capsys), "an earlier evaluation is not replaced silently"
+
+
+def test_a_run_folder_without_a_checkpoint_is_refused(tiny_eval, tmp_path, capsys):
+    run = _run_folder(tmp_path, tiny_eval[0], checkpoint=False)
+    assert main([f"run={run}"]) == 2
+    err = _error(capsys)
+    assert "no checkpoint to evaluate" in err and "best.ckpt or last.ckpt" in err and str(run / "checkpoints") in err
+    assert main([f"run={tmp_path / 'nowhere'}"]) == 2
+    assert "does not exist" in _error(capsys)
+
+
+def test_a_checkpoint_without_the_policy_package_says_so(tiny_eval, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "samp.policy", None)  # as if samp.policy did not exist
+    run = _run_folder(tmp_path, tiny_eval[0])
+    assert main([f"run={run}", "record=false"]) == 2
+    assert "policy package (samp.policy with load_policy) is not available" in _error(capsys)
+
+
+def test_a_checkpoint_for_another_robot_is_refused(tiny_eval, tmp_path, capsys, fake_policy_package, robots):
+    run = _run_folder(tmp_path, tiny_eval[0], robot="iiwa")
+    assert main([f"run={run}"]) == 2
+    err = _error(capsys)
+    assert "policy for robot 'iiwa'" in err and "is for 'panda'" in err
+    other = _run_folder(tmp_path / "b", tiny_eval[0], asset_hash="0" * 64)
+    assert main([f"run={other}"]) == 2
+    assert "different URDF or meshes" in _error(capsys)
+    assert fake_policy_package == [], "nothing is loaded for a robot that run.json says is another"
+    silent = _run_folder(tmp_path / "c", tiny_eval[0], robot=None)  # run.json names no robot: the policy does
+    fake_policy_package.module.load_policy.robot = robots["iiwa"]
+    assert main([f"run={silent}"]) == 2
+    assert "the policy is for robot 'iiwa', but dataset tiny_eval" in _error(capsys)
+
+
+@pytest.fixture(scope="module")
+def no_heldout(tmp_path_factory, _isolated_cache):
+    from samp.data import generate
+
+    spec = {"name": "no_heldout", "robot": "panda", "seed": 3, "train_scenes": 1, "heldout_scenes": 0,
+            "trajectories_per_scene": 2, "generators": ["tabletop"], "resolutions": [12]}
+    return generate(spec, root=tmp_path_factory.mktemp("no_heldout"), progress=False)
+
+
+def test_a_dataset_without_held_out_scenes_is_refused(no_heldout, tmp_path, capsys):
+    for split in ("split=heldout", "split=both"):
+        assert main(["planner=straight", f"dataset={no_heldout}", split, f"out={tmp_path}"]) == 2
+        err = _error(capsys)
+        assert "has no held-out scenes" in err and "split=train" in err, err
+    assert main(["planner=straight", f"dataset={no_heldout}", "split=train", f"out={tmp_path}", "record=false"]) == 0
+
+
+def test_unknown_keys_and_missing_choices_are_refused(tiny_eval, tmp_path, capsys):
+    assert main(["planner=expert", f"dataset={tiny_eval[0]}", "+bogus=1"]) == 2
+    assert "unknown eval setting 'bogus'" in (err := _error(capsys)) and "valid keys: run, planner, dataset" in err
+    assert main(["planner=expert", f"dataset={tiny_eval[0]}", "bogus=1"]) == 2
+    assert "valid keys: run, planner, dataset" in _error(capsys)
+    assert main([f"dataset={tiny_eval[0]}"]) == 2
+    assert "say what to evaluate" in _error(capsys)
+    assert main(["planner=magic", f"dataset={tiny_eval[0]}"]) == 2
+    assert "planner must be expert | straight" in _error(capsys)
+    assert main(["planner=expert"]) == 2
+    assert "say which dataset" in _error(capsys)
+
+
+def test_the_composed_config_is_re_merged_strictly():
+    from samp.eval.config import load_eval_config
+
+    with pytest.raises(ValueError, match="Key 'bogus' not in 'EvalConfig'.*Valid keys: run, planner"):
+        load_eval_config({"bogus": 1})
+    with pytest.raises(ValueError, match="split must be train | heldout | both"):
+        load_eval_config({"split": "validation"})

@@ -1,0 +1,69 @@
+"""Rerun recordings of an evaluation: written, readable by the Rerun CLI, with the expected content."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from samp.eval import StraightLinePolicy, evaluate, load_planner, write_recording
+from samp.viz.rollout import risk_colors
+
+
+def _rerun() -> str:
+    exe = Path(sys.executable).with_name("rerun")
+    found = str(exe) if exe.is_file() else shutil.which("rerun")
+    if found is None:
+        pytest.skip("the rerun CLI (rerun-sdk) is not on PATH next to this Python")
+    return found
+
+
+@pytest.fixture(scope="module")
+def recording(tiny_problems, panda, tmp_path_factory):
+    ds, problems = tiny_problems
+    result = evaluate(StraightLinePolicy(panda), problems)
+    expert = evaluate(load_planner("expert"), problems)
+    path = tmp_path_factory.mktemp("rec") / "recording.rrd"
+    write_recording(path, problems, result, expert, robot=panda, slice_n_e=16, record_rollouts=2, record_points=64,
+                    metrics_md="| a | b |")
+    return path, result
+
+
+def test_the_recording_verifies_with_the_rerun_cli(recording):
+    path, _ = recording
+    out = subprocess.run([_rerun(), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, f"rerun rrd verify failed:\n{out.stdout}\n{out.stderr}"
+
+
+def test_the_recording_holds_the_rollouts(recording):
+    path, result = recording
+    out = subprocess.run([_rerun(), "rrd", "print", str(path)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    for entity in ("/world/robot/links/panda_hand", "/world/robot/points", "/world/paths/planner", "/world/paths/expert",
+                   "/world/markers/goal", "/world/markers/collision", "/world/scene/obstacles/table", "/world/sdf/image",
+                   "/plots/closest_point_distance", "/summary/rollout", "/summary/metrics"):
+        assert entity in out.stdout, f"{entity} missing from the recording"
+    assert any(r["collision"] for r in result["records"]), "a collision marker needs a colliding rollout"
+    assert path.stat().st_size < 5e6, f"6 rollouts, 2 animated, should stay small; got {path.stat().st_size / 1e6:.1f} MB"
+
+
+def test_risk_colors_run_from_red_at_contact_to_green_when_clear():
+    colors = risk_colors(np.array([-0.05, 0.0, 0.1, 0.5]), clear=0.1)
+    assert colors.shape == (4, 3) and colors.dtype == np.uint8
+    np.testing.assert_array_equal(colors[0], colors[1])  # inside counts as contact
+    np.testing.assert_array_equal(colors[2], colors[3])  # beyond `clear` counts as clear
+    assert colors[0][0] > colors[0][1] and colors[2][1] > colors[2][0], f"red then green, got {colors.tolist()}"
+
+
+def test_the_drawn_sdf_plane_is_the_anchor_grids_slice(tiny_problems):
+    """The recording computes only the slice it draws; it must equal that slice of the anchor grid."""
+    from samp.scene import anchor_points
+
+    scene = tiny_problems[1][0].scene
+    grid = scene.anchor_grid(12).numpy()
+    plane = np.asarray(scene.sdf(anchor_points(12, scene.bounds)[:, :, 5]))
+    np.testing.assert_allclose(plane, np.take(grid, 5, axis=2), atol=1e-6)

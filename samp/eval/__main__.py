@@ -123,11 +123,25 @@ def _evaluate(overrides: list[str]) -> Path:
     expert = None
     if cfg.compare_expert and planner.name != "expert":
         expert = evaluate(load_planner("expert"), problems, cfg.rollout())
-    _write(out, cfg, run, ds, problems, planner, result, expert, counts)
+    others = []
+    if cfg.compare_straight and planner.name != "straight":
+        straight = load_planner("straight", robot=planner.robot if hasattr(planner, "robot") else None,
+                                max_step=cfg.straight_max_step, n_e=cfg.n_e)
+        others.append(evaluate(straight, problems, cfg.rollout(), grids=grids))
+    _write(out, cfg, run, ds, problems, planner, result, expert, counts, others)
     return out
 
 
-def _write(out: Path, cfg, run, ds, problems, planner, result: dict, expert: dict | None, counts: dict) -> None:
+def evaluate_run(run_dir: str | Path, overrides: list[str] = ()) -> dict:
+    """Evaluate a run's policy (as `python -m samp.eval run=RUN_DIR ...`); returns its metrics.json."""
+    from samp.eval.names import METRICS_JSON
+
+    out = _evaluate([f"run={run_dir}", *overrides])
+    return json.loads((out / METRICS_JSON).read_text())
+
+
+def _write(out: Path, cfg, run, ds, problems, planner, result: dict, expert: dict | None, counts: dict,
+           others: list[dict] = ()) -> None:
     """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`."""
     from dataclasses import asdict
 
@@ -136,17 +150,18 @@ def _write(out: Path, cfg, run, ds, problems, planner, result: dict, expert: dic
     from samp.provenance import code_version
 
     pooled = len(counts) > 1  # with one split, "all" repeats it
-    rows = [(r["planner"], s, m) for r in filter(None, (result, expert)) for s, m in r["metrics"].items()
+    rows = [(r["planner"], s, m) for r in filter(None, (result, expert, *others)) for s, m in r["metrics"].items()
             if s != ALL_SPLITS or pooled]
     table = markdown_table(rows, cfg.rollout())
     report = {"planner": result["planner"], "run": str(run.path) if run else None, "dataset": f"{ds.name}@{ds.id}",
               "problems": counts, "metrics": result["metrics"], "expert": None if expert is None else expert["metrics"],
+              **{o["planner"]: o["metrics"] for o in others},
               "config": asdict(cfg), "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
               "code_version": code_version()}
     (out / METRICS_JSON).write_text(json.dumps(report, indent=2))
     (out / METRICS_MD).write_text(f"# {result['planner']} on {ds.name}@{ds.id}\n\n{table}")
     with open(out / PROBLEMS_JSONL, "w") as f:
-        for rec in result["records"] + ([] if expert is None else expert["records"]):
+        for rec in result["records"] + ([] if expert is None else expert["records"]) + [r for o in others for r in o["records"]]:
             f.write(json.dumps(rec) + "\n")
     print("\n" + table)
     written = [METRICS_JSON, METRICS_MD, PROBLEMS_JSONL]

@@ -46,6 +46,7 @@ class EvalConfig:
     overwrite: bool = False  # replace the files of an earlier evaluation in `out`
     n_e: int | None = None  # grid resolution handed to the policy (null: the policy's own)
     compare_expert: bool = True  # also evaluate the expert's stored trajectories on the same problems
+    compare_straight: bool = False  # also roll out the straight-line baseline on the same problems
     expert_mode: str = "replay"  # replay (stored trajectories and times) | plan (plan afresh with OMPL)
     straight_max_step: float = 0.05  # the straight-line baseline's step (rad)
     record: bool = True  # write recording.rrd

@@ -102,12 +102,16 @@ class TrajectoryDataModule(pl.LightningDataModule):
         val_split: "heldout" (validate on the held-out scenes) or a fraction in (0, 1) of the training
             scenes' trajectories. val_samples: steps per validation pass (a fixed, seeded subset).
         max_trajectories: use at most this many training trajectories (None: all), for quick runs.
+        generate_missing: when `dataset` names a spec in conf/dataset/ and no such dataset is built yet,
+            generate it first (with `workers` processes); otherwise a missing dataset is an error.
     """
 
     def __init__(self, dataset: str, n_e: int = 40, batch_size: int = 50, scenes_per_batch: int = 2,
                  noise: float = 0.03, val_split: str | float = "heldout", val_samples: int = 2000,
-                 max_trajectories: int | None = None, seed: int = 0, root: str | None = None):
+                 max_trajectories: int | None = None, seed: int = 0, root: str | None = None,
+                 generate_missing: bool = False, workers: int = 2):
         super().__init__()
+        self.generate_missing, self.workers = bool(generate_missing), int(workers)
         if not (val_split == "heldout" or (isinstance(val_split, (int, float)) and 0 < val_split < 1)):
             raise ValueError(f"val_split must be 'heldout' or a fraction in (0, 1), got {val_split!r}")
         if batch_size < 1 or scenes_per_batch < 0 or noise < 0:
@@ -124,9 +128,19 @@ class TrajectoryDataModule(pl.LightningDataModule):
         from pathlib import Path
 
         from samp.data.dataset import open_dataset
+        from samp.data.generation import generate
+        from samp.data.registry import DatasetError
+        from samp.data.spec import available_specs
         from samp.robot import load_robot_config
 
-        ds = open_dataset(self.ref, Path(self.root) if self.root else None)
+        root = Path(self.root) if self.root else None
+        try:
+            ds = open_dataset(self.ref, root)
+        except DatasetError:
+            if not (self.generate_missing and self.ref in available_specs()):
+                raise
+            print(f"dataset {self.ref!r} is not built yet: generating it from conf/dataset/{self.ref}.yaml", flush=True)
+            ds = open_dataset(generate(self.ref, workers=self.workers, root=root))
         if self.n_e not in ds.resolutions:
             raise ValueError(f"dataset {ds.name}@{ds.id} stores grids at n_e in {ds.resolutions}, not {self.n_e}: set "
                              f"data.n_e to one of them or regenerate the dataset with n_e in its spec's resolutions")

@@ -7,7 +7,8 @@ at those points. Four branches meet in a fusion MLP that predicts the normalised
     env      Phi_3D(grid) --grid_sample at T_q(P)--> (M, C) ++ robot SDF (M, 1) --flatten--> MLP_II -> 256
     points   PointNet over (xyz, d_robot) of T_q(P): shared MLP, max over points             -> 256
     config   MLP_I([q_t, q_g])                                                                -> 128
-    fusion   MLP_III(640) -> dq;  q_next = clamp(q_t + dq, -1, 1) in normalised coordinates
+    fusion   MLP_III(640) -> dq;  q_next = clamp(q_t + dq, -1, 1) in normalised coordinates (the clamp
+             passes gradients straight through, so predictions beyond a limit still learn)
 
 Widths follow the authors' released code (about 3.1 M parameters with M = 1024, C = 4). `ablation`
 switches remove the point encoder or the environment branch for the paper's ablations.
@@ -135,5 +136,7 @@ class SAMPNet(nn.Module):
             parts.append(self.env_mlp(torch.cat([env, robot_sdf[..., None]], dim=-1).reshape(B, -1)))
         if self.cfg.point_encoder:
             parts.append(self.point_mlp(torch.cat([points, robot_sdf[..., None]], dim=-1)).amax(dim=1))
-        du = self.fusion(torch.cat(parts[::-1], dim=-1))
-        return (u_t + du).clamp(-1.0, 1.0)
+        u = u_t + self.fusion(torch.cat(parts[::-1], dim=-1))
+        # Clamped to the limits in value; in the backward pass the clamp lets gradients through, so a
+        # prediction beyond a limit is pulled back instead of stalling on a zero gradient.
+        return u + (u.clamp(-1.0, 1.0) - u).detach()

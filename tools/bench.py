@@ -7,6 +7,8 @@ and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites
     scene   anchor grids at n_e in {40, 100, 160} and World.in_collision on a 20-obstacle scene; baselines:
             the same distances one point at a time (timed on a sample, scaled to the grid), and a pairwise
             pybullet check of every link part against every obstacle without broadphase
+    policy  SAMP policy training samples per second (scene-grouped batches vs random batches) and one
+            policy step, at each --anchors n_e; peak memory
     data    expert trajectories per second on --workers processes and the planner's success rate per
             scene generator; open_dataset (decoded waypoints per second) and grid decoding against the
             same arrays read from a .npz file
@@ -324,6 +326,75 @@ def eval(args) -> tuple[dict, list[list]]:  # noqa: A001 (the suite's name; shad
              f"{statistics.mean(expert_times) / statistics.mean(policy_times):.0f}x"],
             ["straight-line policy (no collision awareness)", f"success {m['success_rate']:.0%}",
              f"collision {m['collision_rate']:.0%}", ""]]
+    return metrics, [["what", "samp", "baseline", "ratio"], *rows]
+
+
+@suite
+def policy(args) -> tuple[dict, list[list]]:
+    """SAMP policy training throughput and per-step inference at several n_e; scene-grouped batches
+    (2 scenes per batch of 50) against plain random batches over 8 scenes as the ratio baseline."""
+    import resource
+
+    from omegaconf import OmegaConf
+
+    from samp.paths import conf_dir
+    from samp.policy.system import PolicySystem
+    from samp.robot import load_robot
+    from samp.robot_sdf.artifact import describe, net_spec
+    from samp.robot_sdf.model import UnifiedHashSDF
+    from samp.robot_sdf.samples import link_normalisation
+    from samp.scene import generate_scene
+
+    device = torch.device(args.device)
+    robot = load_robot(args.robot)
+    # An untrained robot SDF of the default architecture: its cost is that of a trained one.
+    kwargs = {k: v for k, v in OmegaConf.to_container(OmegaConf.load(conf_dir() / "model" / "robot_sdf_hash.yaml")).items()
+              if not k.startswith("_")}
+    kwargs["num_links"] = len(robot.link_names)
+    net = UnifiedHashSDF(**kwargs)
+    centres, scales = link_normalisation(robot, 0.02)
+    payload = {"info": describe(robot, net_spec(net, kwargs), "bench", torch.tensor(centres), torch.tensor(scales)),
+               "state_dict": net.state_dict()}
+    system = PolicySystem(robot=args.robot, robot_sdf_payload=payload).to(device)
+    lo, hi = robot.joint_limits.float().T
+    g = torch.Generator().manual_seed(0)
+    scenes = [generate_scene(["tabletop", "shelf", "cabinet", "blocks"][i % 4], seed=i) for i in range(8)]
+    bounds = scenes[0].bounds
+    metrics, rows = {}, []
+    B = 50
+    for n_e in args.anchors:
+        system.grids = torch.stack([s.anchor_grid(n_e) for s in scenes]).to(device)
+        system.hparams.bounds, system.hparams.n_e = bounds, n_e
+        q = (lo + (hi - lo) * torch.rand(B, robot.dof, generator=g)).to(device)
+        batch = {"q": q, "q_next": q + 0.01, "q_goal": q.flip(0)}
+        opt = torch.optim.AdamW(system.net.parameters(), lr=1e-4)
+
+        def step(scene):
+            loss = system._losses({**batch, "scene": scene})["loss"]
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+
+        grouped = torch.arange(B, device=device) * 2 // B  # 2 scenes
+        plain = torch.randint(0, len(scenes), (B,), generator=g).to(device)  # ~8 scenes
+        t_grouped = timeit(lambda: step(grouped), device, min_time=0.0, repeats=3)
+        t_plain = timeit(lambda: step(plain), device, min_time=0.0, repeats=3)
+        system.eval()
+        with torch.no_grad():
+            features = system.encode(system.grids[:1])
+            zero = torch.zeros(1, dtype=torch.long, device=device)
+            t_infer = timeit(lambda: system.predict(q[:1], q[1:2], features, zero, bounds), device, min_time=0.0, repeats=5)
+        system.train()
+        metrics.update({f"n{n_e}/train_samples_per_s": B / t_grouped, f"n{n_e}/train_samples_per_s_random": B / t_plain,
+                        f"n{n_e}/grouped_speedup": t_plain / t_grouped, f"n{n_e}/inference_ms": 1e3 * t_infer})
+        rows.append([f"train n_e={n_e} (B=50)", f"{B / t_grouped:.0f} samples/s", f"{B / t_plain:.0f} samples/s (random)",
+                     f"{t_plain / t_grouped:.2f}x"])
+        rows.append([f"  one policy step n_e={n_e}", f"{1e3 * t_infer:.1f} ms", "", ""])
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    metrics["peak_rss_mb"] = peak
+    if device.type == "cuda":
+        metrics["peak_cuda_mb"] = torch.cuda.max_memory_allocated(device) / 2**20
+    rows.append(["peak memory (process RSS)", f"{peak:.0f} MB", "", ""])
     return metrics, [["what", "samp", "baseline", "ratio"], *rows]
 
 

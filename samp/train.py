@@ -1,0 +1,189 @@
+"""`python -m samp.train +experiment=NAME [key=value ...]`: compose, seed, instantiate, fit, evaluate, record.
+
+The experiment decides what is trained (`system`, `datamodule`, `model`, each a `_target_`); this file
+only runs the recipe. Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR` or `paths.runs_dir`
+moves the root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and whatever the system's
+`evaluate_run(run_dir) -> metrics` writes. `resume=RUN_DIR` continues a run from its last checkpoint.
+"""
+
+from __future__ import annotations
+
+import inspect
+import re
+import sys
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+__all__ = ["compose_train_config", "main", "train"]
+
+USAGE = "usage: python -m samp.train +experiment=NAME [key=value ...]   (experiments: conf/experiment/*.yaml)"
+HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
+
+
+@dataclass
+class TrainSchema:
+    """The top-level keys of conf/train.yaml; config groups (conf/<group>/) may add their own node."""
+
+    name: str = "???"
+    seed: int = 0
+    system: Any = None
+    datamodule: Any = None
+    trainer: Any = None
+    callbacks: Any = None
+    logger: Any = None
+    model: Any = None
+    paths: Any = None
+    robot: Any = None
+    run_dir: Any = None
+    resume: Any = None
+
+
+def _groups() -> set[str]:
+    from samp.paths import conf_dir
+
+    return {p.name for p in conf_dir().iterdir() if p.is_dir()}
+
+
+def _compose(overrides: list[str]):
+    from hydra.errors import ConfigCompositionException
+
+    from samp.cli import compose
+
+    try:
+        return compose("train", overrides)
+    except ConfigCompositionException as err:
+        match = re.search(r"Could not override '([^']+)'", str(err))
+        if not match:
+            raise
+        key = match.group(1)
+        parent, _, leaf = key.rpartition(".")
+        rest = [o for o in overrides if not o.lstrip("+~").startswith(f"{key}=")]
+        try:
+            from omegaconf import OmegaConf
+
+            node = compose("train", rest)
+            node = OmegaConf.select(node, parent) if parent else node
+            valid = ", ".join(sorted(node.keys())) if hasattr(node, "keys") else "none (not a mapping)"
+        except Exception:  # noqa: BLE001 - the hint is best effort; the original error stands
+            raise err from None
+        raise ValueError(f"unknown config key {key!r} ({leaf!r} is not under {parent or 'the top level'}); "
+                         f"valid keys there: {valid}. Use +{key}=... only to add a key on purpose") from None
+
+
+def _check_targets(node, path: str = "") -> None:
+    """Every `_target_` node's keys must be parameters of its target (unless it takes **kwargs).
+    `node` is the config as plain containers, interpolations unresolved."""
+    from hydra.utils import get_object
+
+    if isinstance(node, dict):
+        target = node.get("_target_")
+        if target is not None:
+            try:
+                params = inspect.signature(get_object(target)).parameters
+            except (ImportError, AttributeError, ValueError, TypeError) as err:
+                raise ValueError(f"config node {path or '<root>'!r}: cannot import _target_ {target!r} ({err})") from None
+            if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+                unknown = sorted(set(node) - HYDRA_KEYS - set(params))
+                if unknown:
+                    valid = ", ".join(p for p in params if p != "self")
+                    raise ValueError(f"config node {path or '<root>'!r}: unknown key(s) {unknown} for {target}; "
+                                     f"valid keys: {valid}")
+        for key, value in node.items():
+            _check_targets(value, f"{path}.{key}" if path else str(key))
+    elif isinstance(node, list):
+        for i, item in enumerate(node):
+            _check_targets(item, f"{path}[{i}]")
+
+
+def compose_train_config(overrides: list[str]):
+    """The composed config, checked strictly: unknown top-level keys and unknown `_target_` arguments
+    are errors that name the valid keys (DESIGN section 7)."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import ConfigKeyError, ValidationError
+
+    cfg = _compose(overrides)
+    schema_keys = {f.name for f in fields(TrainSchema)}
+    allowed = schema_keys | (set(cfg.keys()) & _groups())  # a selected group (robot_sdf_eval: ...) adds its node
+    unknown = sorted(set(cfg.keys()) - allowed)
+    if unknown:
+        raise ValueError(f"unknown top-level config key(s) {unknown}; valid keys: {', '.join(sorted(allowed))}")
+    for key in ("name", "system", "datamodule"):
+        if OmegaConf.is_missing(cfg, key):
+            raise ValueError(f"the config sets no `{key}`; pick an experiment: {USAGE}")
+    plain = OmegaConf.to_container(cfg, resolve=False)
+    try:  # types of the top-level values (seed must be an int, ...)
+        OmegaConf.merge(OmegaConf.structured(TrainSchema), {k: v for k, v in plain.items() if k in schema_keys})
+    except (ConfigKeyError, ValidationError) as err:
+        raise ValueError(f"invalid top-level config value: {str(err).splitlines()[0]}") from None
+    _check_targets(plain)
+    return cfg
+
+
+def _repo_path(path: str) -> Path:
+    from samp.paths import REPO_ROOT
+
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else REPO_ROOT / p
+
+
+def train(overrides: list[str]):
+    """Run the recipe; returns the `RunFolder`."""
+    import pytorch_lightning as pl
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf, open_dict
+
+    from samp.runs import RunFolder
+
+    cfg = compose_train_config(overrides)
+    if cfg.resume:
+        folder = RunFolder(_repo_path(cfg.resume))
+        if not folder.last_checkpoint.is_file():
+            raise FileNotFoundError(f"cannot resume {folder.path}: it has no {folder.last_checkpoint.name} in checkpoints/")
+    else:
+        folder = RunFolder.create(_repo_path(cfg.paths.runs_dir), cfg.name)
+    with open_dict(cfg):
+        cfg.run_dir = str(folder.path)
+        cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
+    folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
+    print(f"run folder: {folder.path}", flush=True)
+
+    with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path)):
+        pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
+        datamodule = instantiate(cfg.datamodule)
+        system = instantiate(cfg.system)
+        callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
+        loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
+        trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
+        trainer.fit(system, datamodule=datamodule, ckpt_path=str(folder.last_checkpoint) if cfg.resume else None)
+        trainer.save_checkpoint(folder.last_checkpoint)
+        metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+        folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step), metrics=metrics)
+        if hasattr(system, "evaluate_run"):
+            metrics.update(system.evaluate_run(folder.path))
+        folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id"))
+    return folder
+
+
+def main(argv: list[str] | None = None) -> int:
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    argv = sys.argv[1:] if argv is None else argv
+    if any(a in ("-h", "--help") for a in argv) or not argv:
+        print(USAGE, file=sys.stderr)
+        return 2
+    try:
+        folder = train(argv)
+    except (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except FloatingPointError as err:  # a diverged run: run.json says failed, checkpoints/ keeps the last good state
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    print(f"done: {folder.path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,118 @@
+"""PolicySystem: shapes for batch sizes 1 and 50, the collision loss's hinge, learning on a small set,
+checkpoints that reload to identical outputs (robot SDF inside), and clear errors."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from samp.data import generate
+from samp.data.module import TrajectoryDataModule
+from samp.policy.system import PolicySystem
+from samp.robot_sdf.artifact import describe, net_spec
+from samp.robot_sdf.model import UnifiedHashSDF
+from samp.robot_sdf.samples import link_normalisation
+
+SPEC = {"name": "pol", "robot": "panda", "seed": 5, "train_scenes": 1, "heldout_scenes": 1,
+        "trajectories_per_scene": 2, "generators": ["tabletop"], "resolutions": [16]}
+SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
+
+
+def _robot_sdf_payload(robot) -> dict:
+    """A small, untrained unified hash-grid SDF in the artifact format (weights are irrelevant here)."""
+    torch.manual_seed(0)
+    kwargs = {"num_links": len(robot.link_names), "encoding": {"levels": 4, "log2_table_size": 10, "finest": 64},
+              "hidden": [16]}
+    net = UnifiedHashSDF(**kwargs)
+    centres, scales = link_normalisation(robot, 0.02)
+    info = describe(robot, net_spec(net, kwargs), "test", torch.tensor(centres), torch.tensor(scales))
+    return {"info": info, "state_dict": net.state_dict(), "artifact_id": "test"}
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory, robots):
+    folder = generate(SPEC, root=tmp_path_factory.mktemp("datasets"), progress=False)
+    dm = TrajectoryDataModule(str(folder), n_e=16, batch_size=50, noise=0.0)
+    dm.setup()
+    payload = _robot_sdf_payload(robots["panda"])
+    return dm, payload
+
+
+def _system(setup, **kw) -> PolicySystem:
+    dm, payload = setup
+    system = PolicySystem(robot="panda", robot_sdf_payload=payload, **{"model": SMALL_NET, **kw})
+    system.grids, system.hparams.bounds, system.hparams.n_e = dm.grids, dm.bounds, dm.n_e
+    system.hparams.dataset_id = dm.dataset_id
+    return system
+
+
+@pytest.mark.parametrize("batch", [1, 50])
+def test_output_shapes_and_limits(setup, batch):
+    dm, _ = setup
+    system = _system(setup).eval()
+    b = dm.train_samples[torch.arange(batch)]
+    features = system.encode(dm.grids)
+    with torch.no_grad():
+        q_next = system.predict(b["q"], b["q_goal"], features, b["scene"], dm.bounds)
+    assert q_next.shape == (batch, 7)
+    lim = system.robot.joint_limits.float()
+    assert (q_next >= lim[:, 0] - 1e-6).all() and (q_next <= lim[:, 1] + 1e-6).all()
+    losses = system._losses(b)
+    assert set(losses) == {"match", "coll", "config", "loss"} and all(torch.isfinite(v) for v in losses.values())
+
+
+def test_two_hundred_steps_drive_the_loss_down_tenfold(setup):
+    dm, _ = setup
+    torch.manual_seed(0)
+    system = _system(setup, lr=1e-3, collision_loss=False).train()
+    batch = dm.train_samples[torch.arange(64)]
+    opt = torch.optim.Adam(system.net.parameters(), lr=1e-3)
+    first = None
+    for _ in range(200):
+        loss = system._losses(batch)["loss"]
+        first = first if first is not None else float(loss.detach())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < first / 10, (first, float(loss))
+
+
+def test_collision_loss_switch_and_ablations(setup):
+    dm, _ = setup
+    b = dm.train_samples[torch.arange(8)]
+    assert float(_system(setup, collision_loss=False)._losses(b)["coll"]) == 0.0
+    no_points = _system(setup, model={**SMALL_NET, "point_encoder": False})
+    assert not hasattr(no_points.net, "point_mlp")
+    assert torch.isfinite(_system(setup, robot_sdf_feature=False)._losses(b)["loss"])
+
+
+def test_checkpoint_reloads_to_identical_outputs(setup, tmp_path):
+    import pytorch_lightning as pl
+
+    dm, _ = setup
+    system = _system(setup)
+    trainer = pl.Trainer(max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                         enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
+    trainer.fit(system, datamodule=dm)
+    path = tmp_path / "policy.ckpt"
+    trainer.save_checkpoint(path)
+    again = PolicySystem.from_checkpoint(path)
+    system.eval()
+    b = dm.train_samples[torch.arange(5)]
+    with torch.no_grad():
+        want = system.predict(b["q"], b["q_goal"], system.encode(dm.grids), b["scene"], dm.bounds)
+        got = again.predict(b["q"], b["q_goal"], again.encode(dm.grids), b["scene"], again.hparams.bounds)
+    assert torch.equal(want, got)
+    assert again.hparams.n_e == 16 and again.hparams.dataset_id == dm.dataset_id
+
+
+def test_robot_sdf_for_another_robot_is_refused(setup):
+    _, payload = setup
+    other = {**payload, "info": {**payload["info"], "robot": "iiwa"}}
+    with pytest.raises(ValueError, match="robot SDF is for robot 'iiwa'"):
+        PolicySystem(robot="panda", model=SMALL_NET, robot_sdf_payload=other)
+
+
+def test_missing_robot_sdf_says_how_to_build_it(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"python -m samp.train \+experiment=robot_sdf_panda"):
+        PolicySystem(robot="panda", robot_sdf="robot_sdf_panda", runs_dir=str(tmp_path))

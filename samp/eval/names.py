@@ -1,17 +1,15 @@
-"""Names the evaluation code writes and reads, defined once: run-folder files, metric prefixes, splits.
-
-When the project grows a shared constants module for run folders, these move there unchanged.
-"""
+"""Names the evaluation code writes and reads: run-folder files (from `samp.runs`), metric prefixes, splits."""
 
 from __future__ import annotations
+
+from samp.runs.folder import CHECKPOINTS_DIR as CHECKPOINT_DIR
+from samp.runs.folder import LAST_CHECKPOINT as LAST_CKPT
+from samp.runs.folder import RUN_JSON
 
 __all__ = ["BEST_CKPT", "CHECKPOINT_DIR", "CHECKPOINT_PREFERENCE", "EVAL_DIR", "LAST_CKPT", "METRICS_JSON", "METRICS_MD",
            "METRIC_PREFIX", "PROBLEMS_JSONL", "RECORDING_RRD", "RUN_JSON", "SPLITS", "ALL_SPLITS"]
 
-RUN_JSON = "run.json"  # a run folder's record (DESIGN section 6)
-CHECKPOINT_DIR = "checkpoints"
 BEST_CKPT = "best.ckpt"  # written by EvalCallback when the rollout success rate improves
-LAST_CKPT = "last.ckpt"  # Lightning's ModelCheckpoint(save_last=True)
 CHECKPOINT_PREFERENCE = (BEST_CKPT, LAST_CKPT)
 
 EVAL_DIR = "eval"  # under a run folder

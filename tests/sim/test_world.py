@@ -138,7 +138,14 @@ def _random_q(robot, count: int, seed: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------- tests
-@pytest.mark.parametrize("make_scene, seed", [(_primitives_scene, 0), (_table_scene, 1)])
+def _generated(name: str):
+    from samp.scene import generate_scene
+
+    return lambda: generate_scene(name, seed=4)
+
+
+@pytest.mark.parametrize("make_scene, seed", [(_primitives_scene, 0), (_table_scene, 1)] +
+                         [(_generated(g), 2 + i) for i, g in enumerate(["tabletop", "shelf", "cabinet", "blocks"])])
 def test_collisions_and_distances_match_the_sdf_oracle(panda, samples, make_scene, seed):
     scene = make_scene()
     q = _random_q(panda, N_CONFIGS, seed)

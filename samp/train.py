@@ -11,6 +11,7 @@ from __future__ import annotations
 import inspect
 import re
 import sys
+import warnings
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -140,6 +141,7 @@ def train(overrides: list[str]):
         folder = RunFolder(_repo_path(cfg.resume))
         if not folder.last_checkpoint.is_file():
             raise FileNotFoundError(f"cannot resume {folder.path}: it has no {folder.last_checkpoint.name} in checkpoints/")
+        folder.keep_metrics()  # the CSV logger would delete the earlier metrics.csv
     else:
         folder = RunFolder.create(_repo_path(cfg.paths.runs_dir), cfg.name)
     with open_dict(cfg):
@@ -148,6 +150,8 @@ def train(overrides: list[str]):
     folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
     print(f"run folder: {folder.path}", flush=True)
 
+    # The CSV logger writes into the run folder, which already holds .hydra/ and run.json by design.
+    warnings.filterwarnings("ignore", message="Experiment logs directory .* exists and is not empty")
     with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path)):
         pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
         datamodule = instantiate(cfg.datamodule)

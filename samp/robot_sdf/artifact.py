@@ -33,9 +33,14 @@ CHECKPOINT_KEY = "robot_sdf"  # the description inside a Lightning checkpoint
 STATE_PREFIX = "net."
 
 
-def net_spec(net: nn.Module, kwargs: dict) -> dict:
-    """{"target": dotted class path, "kwargs": plain keyword arguments} to rebuild `net`."""
+def net_spec(net: nn.Module, kwargs: dict | None = None) -> dict:
+    """{"target": dotted class path, "kwargs": plain keyword arguments} to rebuild `net` (default: the
+    `config` the network classes of this package keep of their constructor arguments)."""
     cls = type(net)
+    if kwargs is None:
+        if not hasattr(net, "config"):
+            raise ValueError(f"{cls.__name__} keeps no `config`; pass its constructor arguments as kwargs")
+        kwargs = net.config
     return {"target": f"{cls.__module__}.{cls.__qualname__}", "kwargs": _plain(kwargs)}
 
 

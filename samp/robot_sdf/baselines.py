@@ -41,6 +41,7 @@ class NNSDF(nn.Module):
         if num_links < 1 or frequencies < 0:
             raise ValueError(f"need num_links >= 1 and frequencies >= 0, got {num_links}, {frequencies}")
         self.num_links = num_links
+        self.config = {"num_links": num_links, "frequencies": frequencies, "hidden": list(hidden), "activation": activation}
         self.register_buffer("freqs", (2.0 ** torch.arange(frequencies)) * math.pi)
         self.net = mlp(3 + 6 * frequencies + num_links, list(hidden), 1, activation)
 
@@ -83,6 +84,7 @@ class BernsteinSDF(nn.Module):
         if num_links < 1 or n_basis < 2:
             raise ValueError(f"need num_links >= 1 and n_basis >= 2, got {num_links}, {n_basis}")
         self.num_links, self.n_basis = num_links, n_basis
+        self.config = {"num_links": num_links, "n_basis": n_basis}
         self.register_buffer("weights", torch.zeros(num_links, n_basis, n_basis, n_basis, dtype=torch.float64))
 
     @property
@@ -130,11 +132,28 @@ class FitInfo:
     seconds: float
 
 
+DIRECT_MAX_BASIS = 1000  # up to this many unknowns (N <= 10) the normal equations are formed and factored
+
+
 def _solve_link(u: torch.Tensor, y: torch.Tensor, n_basis: int, ridge: float, max_iterations: int,
                 tolerance: float, start: torch.Tensor | None) -> tuple[torch.Tensor, int, float]:
-    """Legendre coefficients (N, N, N) minimising |A c - y|^2 + ridge * n |c|^2 by Jacobi-preconditioned CG."""
+    """Legendre coefficients (N, N, N) minimising |A c - y|^2 + ridge * n |c|^2: directly (Cholesky of the
+    normal equations, float64) for few unknowns, else by Jacobi-preconditioned CG from `start`.
+    Returns the coefficients, the CG iterations (0 when direct) and the relative residual."""
     factors = [legendre_basis(u[:, a], n_basis) for a in range(3)]
     lam = ridge * len(u)
+    if n_basis**3 <= DIRECT_MAX_BASIS:
+        gram = torch.zeros(n_basis**3, n_basis**3, dtype=torch.float64)
+        rhs = torch.zeros(n_basis**3, dtype=torch.float64)
+        for i in range(0, len(u), 16384):  # design-matrix rows in chunks: (m, N^3) Khatri-Rao products
+            fx, fy, fz = (f[i:i + 16384].double() for f in factors)
+            a = (fx[:, :, None, None] * fy[:, None, :, None] * fz[:, None, None, :]).flatten(1)
+            gram += a.T @ a
+            rhs += a.T @ y[i:i + 16384].double()
+        gram.diagonal().add_(lam)
+        c = torch.cholesky_solve(rhs[:, None], torch.linalg.cholesky(gram))[:, 0]
+        rel = float((gram @ c - rhs).norm() / rhs.norm())
+        return c.reshape(n_basis, n_basis, n_basis).to(u.dtype), 0, rel
 
     def normal(c):
         return _contract_adjoint(_contract(c, *factors), *factors) + lam * c
@@ -158,10 +177,12 @@ def _solve_link(u: torch.Tensor, y: torch.Tensor, n_basis: int, ridge: float, ma
 
 
 def fit_bernstein(samples, n_basis: int, ridge: float = 1e-7, max_iterations: int = 200, tolerance: float = 1e-3,
-                  max_points: int | None = None, warm_start: bool = True, seed: int = 0) -> tuple[BernsteinSDF, FitInfo]:
+                  max_points: int | None = None, warm_start: bool = True, seed: int = 0,
+                  dtype: torch.dtype = torch.float32) -> tuple[BernsteinSDF, FitInfo]:
     """Least-squares RDF for every link of a `SampleSet` (all its points, or `max_points` per link).
 
-    Solved in float32 per link; with `warm_start` the degree rises 8 -> 16 -> n_basis, each stage
+    Solved per link in `dtype` (float32 by default: the samples are float32, and float64 CG costs about
+    twice as much on CPU); with `warm_start` the degree rises 8 -> 16 -> n_basis, each stage
     starting from the last one's coefficients (a lower-degree Legendre expansion is the leading block of
     a higher one), which cuts the CG iterations of the top degree.
     """
@@ -174,12 +195,12 @@ def fit_bernstein(samples, n_basis: int, ridge: float = 1e-7, max_iterations: in
         rows = torch.nonzero(samples.link == i).flatten()
         if max_points is not None and len(rows) > max_points:
             rows = rows[torch.randperm(len(rows), generator=gen)[:max_points]]
-        u, y = samples.points[rows].float(), samples.sdf[rows].float()
+        u, y = samples.points[rows].to(dtype), samples.sdf[rows].to(dtype)
         coeffs, total = None, 0
         for n in stages:
             start = None
             if coeffs is not None:
-                start = torch.zeros(n, n, n)
+                start = torch.zeros(n, n, n, dtype=dtype)
                 m = coeffs.shape[0]
                 start[:m, :m, :m] = coeffs
             coeffs, it, rel = _solve_link(u, y, n, ridge, max_iterations, tolerance, start)

@@ -116,9 +116,15 @@ class HashGridEncoding(nn.Module):
         t = (self._axis_terms(lo, level), self._axis_terms(lo + 1, level))
         combine = (lambda a, b, c: a ^ b ^ c) if self.hashed[level] else (lambda a, b, c: a + b + c)
         corners = [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)]
-        rows = torch.stack([combine(t[a][0], t[b][1], t[c][2]) for a, b, c in corners])  # (8, P)
-        weights = torch.stack([w[a][0] * w[b][1] * w[c][2] for a, b, c in corners])  # (8, P)
-        return _Interpolate.apply(self.tables[level], rows, weights)
+        rows = [combine(t[a][0], t[b][1], t[c][2]) for a, b, c in corners]  # 8 x (P,)
+        weights = [w[a][0] * w[b][1] * w[c][2] for a, b, c in corners]  # 8 x (P,)
+        table = self.tables[level]
+        if torch.is_grad_enabled() and (table.requires_grad or xt.requires_grad):
+            return _Interpolate.apply(table, torch.stack(rows), torch.stack(weights))
+        out = weights[0][:, None] * table.index_select(0, rows[0])  # no autograd: skip the stacking
+        for r, wc in zip(rows[1:], weights[1:]):
+            out += wc[:, None] * table.index_select(0, r)
+        return out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x (P, 3) in [0, 1]^3 -> (P, levels * features)."""

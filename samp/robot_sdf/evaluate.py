@@ -54,6 +54,7 @@ class EvalConfig:
     seed: int = 20240601
     timing_batches: list[int] = field(default_factory=lambda: [1, 50])  # configurations of 1024-ish robot points
     recording: bool = True  # write the offset-layer recording
+    recording_spacing: float = 0.004  # metres between the recording's slice samples
 
     def __post_init__(self):
         if min(self.link_points, self.configs, self.robot_points) < 2 or not self.noise:
@@ -75,7 +76,7 @@ def _cache_key(robot, centres, scales, cfg: EvalConfig, kind: str) -> str:
     key = {"format": EVAL_FORMAT, "kind": kind, "asset": robot.asset_hash, "links": list(robot.link_names),
            "centres": np.round(np.asarray(centres, dtype=np.float64), 9).tolist(),
            "scales": np.round(np.asarray(scales, dtype=np.float64), 9).tolist(),
-           "cfg": {k: v for k, v in asdict(cfg).items() if k not in ("timing_batches", "recording")}}
+           "cfg": {k: v for k, v in asdict(cfg).items() if k not in ("timing_batches", "recording", "recording_spacing")}}
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -253,7 +254,8 @@ def evaluate_methods(robot, methods: dict, cfg: EvalConfig, out_dir: Path | str 
         if cfg.recording:
             from samp.robot_sdf.viz import write_offset_recording
 
-            write_offset_recording(out / RECORDING, robot, {k: v["model"] for k, v in methods.items()})
+            write_offset_recording(out / RECORDING, robot, {k: v["model"] for k, v in methods.items()},
+                                   spacing=cfg.recording_spacing)
     return report
 
 

@@ -73,6 +73,8 @@ class UnifiedHashSDF(nn.Module):
         if num_links < 1:
             raise ValueError(f"num_links must be >= 1, got {num_links}")
         self.num_links = num_links
+        self.config = {"num_links": num_links, "encoding": dict(encoding or {}), "hidden": list(hidden),
+                       "spacing": spacing, "layout": layout, "activation": activation}
         offsets, half_extent = link_offsets(num_links, spacing, layout)
         self.register_buffer("offsets", offsets.float())
         self.half_extent = half_extent

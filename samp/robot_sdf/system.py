@@ -148,7 +148,7 @@ class RobotSDFSystem(pl.LightningModule):
         self.link_names = list(load_robot_config(robot).collision_links)
         kwargs = {**getattr(net, "keywords", {}), "num_links": len(self.link_names)}
         self.net = (net.func if hasattr(net, "func") else net)(**kwargs)
-        self.spec = net_spec(self.net, kwargs)
+        self.spec = net_spec(self.net)
         self.optimizer_factory, self.lr_final_factor, self.time_limit_s = optimizer, lr_final_factor, time_limit_s
         self.loss_name, self.evaluation = loss, _plain(evaluation)
         self.method = method or getattr(self.net, "label", type(self.net).__name__)

@@ -19,7 +19,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 __all__ = ["CHECKPOINTS_DIR", "CONFIG_DIR", "LAST_CHECKPOINT", "METRICS_CSV", "RUN_JSON", "STATUSES", "RunFolder",
-           "runs_root"]
+           "Terminated", "runs_root"]
 
 RUN_JSON = "run.json"
 METRICS_CSV = "metrics.csv"
@@ -80,6 +80,36 @@ class RunFolder:
         (folder / "config.yaml").write_text(resolved_yaml)
         (folder / "overrides.yaml").write_text("".join(f"- {o}\n" for o in overrides) or "[]\n")
 
+    def trim_metrics(self, step: int) -> int:
+        """Before a resumed run continues metrics.csv: rows logged after the checkpoint it resumes from
+        (their `step` is >= `step`) are redone, so they move to metrics.superseded.csv. Returns how many."""
+        import csv
+
+        path = self.path / METRICS_CSV
+        if not path.is_file():
+            return 0
+        with open(path, newline="") as f:
+            reader = csv.DictReader(f)
+            header, rows = list(reader.fieldnames or []), list(reader)
+        keep, dropped = [], []
+        for row in rows:
+            (keep if not row.get("step") or int(float(row["step"])) < step else dropped).append(row)
+        if not dropped:
+            return 0
+        superseded = self.path / "metrics.superseded.csv"
+        with open(superseded, "a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=header)
+            if f.tell() == 0:
+                writer.writeheader()
+            writer.writerows(dropped)
+        tmp = self.path / f".{METRICS_CSV}.tmp"
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=header)
+            writer.writeheader()
+            writer.writerows(keep)
+        tmp.replace(path)
+        return len(dropped)
+
     def read(self) -> dict:
         path = self.path / RUN_JSON
         return json.loads(path.read_text()) if path.is_file() else {}
@@ -98,17 +128,19 @@ class RunFolder:
     @contextmanager
     def record(self, **info):
         """Mark the run running (with provenance and `info`) for the block, then completed, failed or
-        interrupted (Ctrl-C; Lightning turns it into SystemExit after a graceful shutdown)."""
+        interrupted: Ctrl-C (Lightning turns it into SystemExit after a graceful shutdown) or SIGTERM
+        (what `kill`, SLURM and job schedulers send; raised here as `Terminated`)."""
         from samp.provenance import code_version, package_versions
 
         previous = self.read()
         starts = previous.get("starts", []) + [_now()]
         self.update(status="running", start=starts[0], starts=starts, end=None, error=None, host=platform.node(),
-                    command=[Path(sys.argv[0]).name, *sys.argv[1:]], code_version=code_version(),
+                    pid=os.getpid(), command=[Path(sys.argv[0]).name, *sys.argv[1:]], code_version=code_version(),
                     packages=package_versions(), **info)
         try:
-            yield self
-        except (KeyboardInterrupt, SystemExit):
+            with _sigterm_raises():
+                yield self
+        except (KeyboardInterrupt, SystemExit, Terminated):
             self.update(status="interrupted", end=_now())
             raise
         except BaseException as err:
@@ -117,3 +149,29 @@ class RunFolder:
             raise
         else:
             self.update(status="completed", end=_now())
+
+
+class Terminated(BaseException):
+    """The process received SIGTERM inside `RunFolder.record` (a BaseException, like KeyboardInterrupt,
+    so that `except Exception` in library code does not swallow it)."""
+
+
+@contextmanager
+def _sigterm_raises():
+    """Within the block, SIGTERM raises `Terminated` in the main thread (elsewhere signals cannot be set,
+    and the block runs unchanged). Lightning, during `fit`, calls its own handler first, then this one."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum, frame):
+        raise Terminated(f"received signal {signum} (SIGTERM)")
+
+    before = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)

@@ -3,7 +3,10 @@
 The experiment decides what is trained (`system`, `datamodule`, `model`, each a `_target_`); this file
 only runs the recipe. Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR` or `paths.runs_dir`
 moves the root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and whatever the system's
-`evaluate_run(run_dir) -> metrics` writes. `resume=RUN_DIR` continues a run from its last checkpoint.
+`evaluate_run(run_dir) -> metrics` writes. `resume=RUN_DIR` continues a run in its own folder from its
+last checkpoint, with the overrides it was started with (new ones win) and its loggers continuing;
+`run_dir=DIR` puts a new run in a folder of your choice. `-m` / `+sweep=NAME` hand the arguments to the
+Hydra multirun entry point (`samp.runs.sweep`), which calls `train` once per sweep member.
 """
 
 from __future__ import annotations
@@ -12,13 +15,17 @@ import inspect
 import re
 import sys
 import warnings
+from contextlib import nullcontext
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 __all__ = ["compose_train_config", "main", "train"]
 
-USAGE = "usage: python -m samp.train +experiment=NAME [key=value ...]   (experiments: conf/experiment/*.yaml)"
+USAGE = """usage: python -m samp.train +experiment=NAME [key=value ...]   (experiments: conf/experiment/*.yaml)
+       python -m samp.train resume=RUN_DIR [key=value ...]    (continue a run from its checkpoints/last.ckpt)
+       python -m samp.train -m +sweep=NAME [hydra/launcher=runs_joblib|runs_slurm] [key=value ...]
+                                                             (a sweep: conf/sweep/*.yaml, see samp/runs/sweep.py)"""
 HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
 
 
@@ -128,55 +135,132 @@ def _repo_path(path: str) -> Path:
     return p if p.is_absolute() else REPO_ROOT / p
 
 
-def train(overrides: list[str]):
-    """Run the recipe; returns the `RunFolder`."""
+def _resume_overrides(overrides: list[str]) -> list[str]:
+    """`resume=RUN_DIR [key=value ...]`: the run's recorded overrides, then the new ones (which win)."""
+    from samp.runs import RunFolder
+    from samp.runs.lineage import merge_overrides, override_key
+
+    resume = [o for o in overrides if override_key(o) == "resume"]
+    if not resume:
+        return overrides
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    path = OverridesParser.create().parse_override(resume[-1]).value()  # unquoted, as Hydra reads it
+    if path in (None, ""):
+        return overrides
+    folder = RunFolder(_repo_path(str(path)))
+    recorded = [o for o in folder.read().get("overrides", []) if override_key(o) not in ("resume", "run_dir")]
+    return merge_overrides(recorded, overrides)
+
+
+def _open_folder(cfg):
+    """(the run folder, the checkpoint to resume from or None), by `resume`, `run_dir` or a new folder."""
+    import os
+
+    from samp.runs import RunFolder
+    from samp.runs.lineage import RUN_DIR_ENV, is_rank_zero
+
+    if not is_rank_zero():  # another DDP rank: rank 0's folder (Lightning's launcher passes it in the environment)
+        path = os.environ.get(RUN_DIR_ENV) or cfg.resume or cfg.run_dir
+        if not path:
+            raise ValueError("DDP ranks started apart (srun, torchrun) must share one run folder: pass run_dir=DIR, "
+                             "e.g. run_dir=runs/NAME/$SLURM_JOB_ID")
+        _repo_path(path).mkdir(parents=True, exist_ok=True)
+        folder = RunFolder(_repo_path(path))
+        return folder, folder.last_checkpoint if folder.last_checkpoint.is_file() else None
+    if cfg.resume:
+        folder = RunFolder(_repo_path(cfg.resume))
+        if not folder.last_checkpoint.is_file():
+            raise FileNotFoundError(f"cannot resume {folder.path}: it has no {folder.last_checkpoint.name} in "
+                                    f"checkpoints/ (the run stopped before its first checkpoint); start it again")
+        return folder, folder.last_checkpoint
+    if cfg.run_dir:  # a sweep member's folder, or one the user names
+        folder = RunFolder.create_at(_repo_path(cfg.run_dir))
+    else:
+        folder = RunFolder.create(_repo_path(cfg.paths.runs_dir), cfg.name)
+    os.environ[RUN_DIR_ENV] = str(folder.path)
+    return folder, None
+
+
+def train(overrides: list[str], **info):
+    """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there)."""
+    import time
+
     import pytorch_lightning as pl
     from hydra.utils import instantiate
     from omegaconf import OmegaConf, open_dict
 
-    from samp.runs import RunFolder
+    from samp.runs.lineage import is_rank_zero
+    from samp.runs.loggers import finish_loggers
 
+    overrides = _resume_overrides(list(overrides))
     cfg = compose_train_config(overrides)
-    if cfg.resume:
-        folder = RunFolder(_repo_path(cfg.resume))
-        if not folder.last_checkpoint.is_file():
-            raise FileNotFoundError(f"cannot resume {folder.path}: it has no {folder.last_checkpoint.name} in checkpoints/")
-        folder.keep_metrics()  # the CSV logger would delete the earlier metrics.csv
-    else:
-        folder = RunFolder.create(_repo_path(cfg.paths.runs_dir), cfg.name)
+    folder, ckpt = _open_folder(cfg)
     with open_dict(cfg):
         cfg.run_dir = str(folder.path)
+        cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
         cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
-    folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
-    print(f"run folder: {folder.path}", flush=True)
+    rank_zero = is_rank_zero()
+    if rank_zero:
+        folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
+        if ckpt is not None:
+            _trim_metrics(folder, ckpt)
+        print(f"run folder: {folder.path}" + (f" (resuming from {ckpt.name})" if ckpt else ""), flush=True)
 
     # The CSV logger writes into the run folder, which already holds .hydra/ and run.json by design.
     warnings.filterwarnings("ignore", message="Experiment logs directory .* exists and is not empty")
-    with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path)):
+    config = OmegaConf.to_container(cfg, resolve=True)
+    with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path),
+                       config=config, **info) if rank_zero else nullcontext(folder):
         pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
         datamodule = instantiate(cfg.datamodule)
         system = instantiate(cfg.system)
         callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
         loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
         trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
-        trainer.fit(system, datamodule=datamodule, ckpt_path=str(folder.last_checkpoint) if cfg.resume else None)
+        start = time.perf_counter()
+        trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None)
+        fit_s = time.perf_counter() - start + ((folder.read().get("fit_time_s") or 0.0) if ckpt else 0.0)
         trainer.save_checkpoint(folder.last_checkpoint)
+        if not rank_zero:
+            return folder
         metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-        folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step), metrics=metrics)
-        if hasattr(system, "evaluate_run"):
-            metrics.update(system.evaluate_run(folder.path))
-        folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id"))
+        folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step),
+                      epochs=int(trainer.current_epoch), fit_time_s=fit_s, metrics=metrics,
+                      robot_sdf_artifact_id=getattr(system, "robot_sdf_artifact_id", None))
+        evaluated = system.evaluate_run(folder.path) if hasattr(system, "evaluate_run") else {}
+        metrics.update(evaluated)
+        record = folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id")
+                               or folder.read().get("robot_sdf_artifact_id"))
+        finish_loggers(loggers, record, evaluated, step=int(trainer.global_step))
     return folder
+
+
+def _trim_metrics(folder, ckpt: Path) -> None:
+    """Rows of metrics.csv logged after the checkpoint a resumed run starts from are set aside."""
+    import torch
+
+    step = int(torch.load(ckpt, map_location="cpu", weights_only=False, mmap=True)["global_step"])
+    moved = folder.trim_metrics(step)
+    if moved:
+        print(f"metrics.csv: {moved} row(s) logged after step {step} (past the checkpoint) moved to "
+              "metrics.superseded.csv", flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    from samp.runs.folder import Terminated
+
     argv = sys.argv[1:] if argv is None else argv
     if any(a in ("-h", "--help") for a in argv) or not argv:
         print(USAGE, file=sys.stderr)
         return 2
+    if any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv):
+        from samp.runs.sweep import multirun
+
+        return multirun([a for a in argv if a not in ("-m", "--multirun")])
     try:
         folder = train(argv)
     except (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError) as err:
@@ -185,6 +269,10 @@ def main(argv: list[str] | None = None) -> int:
     except FloatingPointError as err:  # a diverged run: run.json says failed, checkpoints/ keeps the last good state
         print(f"error: {err}", file=sys.stderr)
         return 1
+    except (KeyboardInterrupt, Terminated) as err:  # run.json says interrupted
+        print(f"interrupted ({type(err).__name__}); continue with `python -m samp.train resume=RUN_DIR`",
+              file=sys.stderr)
+        return 143 if isinstance(err, Terminated) else 130
     print(f"done: {folder.path}")
     return 0
 

@@ -65,6 +65,18 @@ class RunFolder:
                 continue
         raise RuntimeError(f"could not create a new run folder under {parent}")
 
+    @classmethod
+    def create_at(cls, path: Path | str) -> "RunFolder":
+        """A new run in exactly `path` (a sweep member's folder): created if missing; refused when it
+        already holds a run, which is never overwritten."""
+        path = Path(path)
+        if (path / RUN_JSON).is_file():
+            status = json.loads((path / RUN_JSON).read_text()).get("status")
+            raise ValueError(f"{path} already holds a run (status {status}); continue it with resume={path}, "
+                             "or choose another run_dir")
+        path.mkdir(parents=True, exist_ok=True)
+        return cls(path)
+
     # ----------------------------------------------------------------- files
     @property
     def checkpoints(self) -> Path:

@@ -1,0 +1,59 @@
+"""A run's lineage: which data, which robot SDF, which code, which settings (DESIGN section 6).
+
+`run.json` holds it in full (written by `RunFolder.record` and `samp.train`); `lineage_tags` flattens the
+parts that identify a run into string tags for trackers such as MLflow and W&B, and `flatten` turns a
+nested config into dotted keys for tables and filters.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["LINEAGE_KEYS", "RUN_DIR_ENV", "flatten", "is_rank_zero", "lineage_tags", "merge_overrides",
+           "override_key"]
+
+# run.json fields that say where a result came from; each becomes a tracker tag (`samp.<key>`).
+LINEAGE_KEYS = ("experiment", "seed", "dataset_id", "robot_sdf_artifact_id", "host", "run_dir")
+# Set by the rank-0 process of `samp.train` to its run folder, so that the processes Lightning starts for
+# the other DDP ranks (they inherit the environment) attach to the same folder instead of making new ones.
+RUN_DIR_ENV = "SAMP_RUN_DIR"
+
+
+def is_rank_zero() -> bool:
+    """True in the process that owns the run folder (global rank 0, or no distributed launch at all)."""
+    for var in ("RANK", "SLURM_PROCID", "LOCAL_RANK"):  # Lightning's order of precedence
+        if os.environ.get(var) not in (None, ""):
+            return int(os.environ[var]) == 0
+    return True
+
+
+def flatten(node, prefix: str = "") -> dict:
+    """{"a": {"b": 1}, "c": [2]} -> {"a.b": 1, "c": [2]}: nested dicts become dotted keys; lists stay."""
+    if not isinstance(node, dict):
+        return {prefix: node} if prefix else {}
+    out = {}
+    for key, value in node.items():
+        path = f"{prefix}.{key}" if prefix else str(key)
+        out.update(flatten(value, path) if isinstance(value, dict) else {path: value})
+    return out
+
+
+def lineage_tags(record: dict) -> dict[str, str]:
+    """String tags from a run.json record: the LINEAGE_KEYS, the git commit and dirty flag, the package
+    version and the overrides (keys prefixed `samp.`; missing values are left out)."""
+    code = record.get("code_version") or {}
+    values = {**{k: record.get(k) for k in LINEAGE_KEYS}, "git_commit": code.get("git_commit"),
+              "git_dirty": code.get("git_dirty"), "package_version": code.get("package"),
+              "overrides": " ".join(record.get("overrides") or []) or None}
+    return {f"samp.{k}": str(v) for k, v in values.items() if v is not None}
+
+
+def override_key(override: str) -> str:
+    """`+experiment=samp_n40` -> `experiment`; `~trainer.max_steps` -> `trainer.max_steps`."""
+    return override.partition("=")[0].lstrip("+~")
+
+
+def merge_overrides(earlier: list[str], later: list[str]) -> list[str]:
+    """`earlier` with every override whose key `later` sets again dropped, then `later` (later wins)."""
+    keys = {override_key(o) for o in later}
+    return [o for o in earlier if override_key(o) not in keys] + list(later)

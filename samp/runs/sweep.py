@@ -1,0 +1,179 @@
+"""Sweeps: Hydra multirun over the training recipe, one run folder per member, named by its overrides.
+
+    python -m samp.train -m +sweep=anchor_size                          # members one after another
+    python -m samp.train -m +sweep=anchor_size hydra/launcher=runs_joblib hydra.launcher.n_jobs=2
+    python -m samp.train -m +sweep=loss_ablation trainer=gpu hydra/launcher=runs_slurm hydra.launcher.partition=P
+    python -m samp.train -m +experiment=samp_n40,samp_n70 seed=0,1     # an ad-hoc sweep
+
+`samp.train` composes with Hydra's compose API; `-m` (or `+sweep=NAME`) hands the arguments to `multirun`
+here, which runs Hydra's own `main` on conf/train.yaml so that sweepers and launchers (basic, joblib,
+submitit/SLURM) work as Hydra documents them. A sweep config (conf/sweep/NAME.yaml) sets
+`hydra.sweeper.params` and `hydra.sweep.dir` (runs/sweeps/NAME). Every member is exactly
+`samp.train.train(its overrides + run_dir=<member folder>)`, so it is checked, recorded and evaluated like
+a single run. Its folder is `<sweep dir>/<override_dirname>`, built from the overrides that vary between
+members and the experiment, e.g. `runs/sweeps/anchor_size/+experiment=samp_n40/`; the other overrides
+are recorded in the member's run.json.
+
+Running a sweep again: a member whose run.json says completed with the same overrides is skipped; one
+completed with other overrides is an error (use another `hydra.sweep.dir`); an interrupted or failed
+member with a checkpoint resumes from it; one without a checkpoint starts again, its old run.json and
+metrics.csv kept as run.attempt-K.json and metrics.attempt-K.csv.
+
+DDP inside a sweep works only through the SLURM launcher (one SLURM task per GPU; Lightning reads the
+ranks from SLURM). Lightning's local DDP launcher re-runs the command line in each rank, which would
+start the whole sweep again there, so that combination is refused.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
+from samp.runs.lineage import is_rank_zero, override_key
+
+__all__ = ["member_state", "multirun"]
+
+# Overrides of the member itself that the folder name never needs (they do not vary in a sweep).
+ALWAYS_NAMED = ("experiment",)
+
+
+def _swept_keys(overrides: list[str]) -> tuple[set[str], str | None]:
+    """(keys that take several values, from the command line and the sweep config; the sweep's name)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf import OmegaConf
+
+    from samp.paths import conf_dir
+
+    parsed = OverridesParser.create().parse_overrides(overrides)
+    swept = {o.key_or_group for o in parsed if o.is_sweep_override()}
+    names = [o.value() for o in parsed if o.key_or_group == "sweep"]
+    sweep = str(names[-1]) if names else None
+    if sweep is not None:
+        path = conf_dir() / "sweep" / f"{sweep}.yaml"
+        if not path.is_file():
+            known = ", ".join(sorted(p.stem for p in (conf_dir() / "sweep").glob("*.yaml")))
+            raise ValueError(f"no sweep {sweep!r} (conf/sweep/{sweep}.yaml); sweeps: {known}")
+        params = OmegaConf.select(OmegaConf.load(path), "hydra.sweeper.params") or {}
+        swept |= {override_key(str(k)) for k in params}
+    return swept, sweep
+
+
+def _hydra_settings(overrides: list[str]) -> list[str]:
+    """Overrides of Hydra's own settings for a sweep of `samp.train` (the user's own settings win)."""
+    swept, sweep = _swept_keys(overrides)
+    keys = [override_key(o) for o in overrides]
+    named = swept | set(ALWAYS_NAMED)
+    if not named & set(keys) and not swept:
+        raise ValueError("a sweep needs something to vary: +sweep=NAME (conf/sweep/), or an override with several "
+                         "values such as +experiment=samp_n40,samp_n70 or seed=0,1")
+    exclude = sorted({k for k in keys if not k.startswith("hydra") and k not in named} | {"sweep"})
+    settings = {"hydra.job.config.override_dirname.exclude_keys": "[" + ",".join(f"'{k}'" for k in exclude) + "]",
+                "hydra.sweep.subdir": "${hydra.job.override_dirname}",
+                "hydra.output_subdir": "null",  # samp writes .hydra/ itself; Hydra's copy would overwrite it
+                "hydra.job.name": "train", "hydra.job.chdir": "false"}
+    if sweep is None:
+        settings["hydra.sweep.dir"] = "'${paths.runs_dir}/sweeps/${now:%Y-%m-%d_%H-%M-%S}'"
+    return [f"{k}={v}" for k, v in settings.items() if k not in keys]
+
+
+def multirun(argv: list[str]) -> int:
+    """Run a sweep (arguments as `python -m samp.train -m ...` takes them, without the `-m`).
+    Relative paths are taken from the repository root, as everywhere in samp."""
+    import hydra
+
+    from samp.paths import REPO_ROOT, conf_dir
+
+    try:
+        settings = _hydra_settings(argv)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    os.chdir(REPO_ROOT)
+    sys.argv = [sys.argv[0], "--multirun", *argv, *settings]
+    hydra.main(config_path=str(conf_dir()), config_name="train", version_base="1.3")(_member)()
+    return 0
+
+
+def member_state(folder: Path, overrides: list[str]) -> str:
+    """What a sweep member does with its folder: "new", "skip" (completed with the same overrides) or
+    "resume" (stopped after a checkpoint). Raises ValueError for a folder completed with other overrides
+    or still running here. A stopped member without a checkpoint is set aside and starts "new"."""
+    path = folder / RUN_JSON
+    if not path.is_file():
+        return "new"
+    run = RunFolder(folder)
+    record = run.read()
+    recorded = [o for o in record.get("overrides", []) if override_key(o) not in ("resume", "run_dir")]
+    if record.get("status") == "completed":
+        if sorted(recorded) == sorted(overrides):
+            return "skip"
+        raise ValueError(f"sweep member {folder} was completed with overrides {sorted(set(recorded) - set(overrides))} "
+                         f"where this sweep has {sorted(set(overrides) - set(recorded))}; run the sweep into another "
+                         "folder (hydra.sweep.dir=DIR) or move that member away")
+    if record.get("status") == "running" and record.get("host") == os.uname().nodename and _alive(record.get("pid")):
+        raise ValueError(f"sweep member {folder} is still running (pid {record['pid']}); wait for it or stop it")
+    if run.last_checkpoint.is_file():
+        return "resume"
+    k = 1
+    while (folder / f"run.attempt-{k}.json").exists():
+        k += 1
+    path.rename(folder / f"run.attempt-{k}.json")
+    if (folder / METRICS_CSV).is_file():
+        (folder / METRICS_CSV).rename(folder / f"metrics.attempt-{k}.csv")
+    print(f"{folder}: the earlier attempt stopped before its first checkpoint; kept as run.attempt-{k}.json, "
+          "starting again", flush=True)
+    return "new"
+
+
+def _alive(pid) -> bool:
+    if not isinstance(pid, int) or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, PermissionError):
+        return False
+    return True
+
+
+@contextmanager
+def _outside_hydra():
+    """Let `samp.train` compose its config (Hydra's compose API refuses while a Hydra app is running)."""
+    from hydra.core.global_hydra import GlobalHydra
+
+    running = GlobalHydra.instance().hydra
+    GlobalHydra.instance().clear()
+    try:
+        yield
+    finally:
+        GlobalHydra.instance().hydra = running
+
+
+def _member(cfg) -> dict | None:
+    """One sweep member (Hydra's task function): skip, resume or start it in its folder."""
+    from hydra.core.hydra_config import HydraConfig
+
+    from samp.train import train
+
+    hc = HydraConfig.get()
+    folder = Path(hc.runtime.output_dir)
+    overrides = [o for o in hc.overrides.task if override_key(o) != "sweep"]
+    strategy = str((cfg.get("trainer") or {}).get("strategy", ""))
+    if "ddp" in strategy and "submitit" not in str(hc.launcher.get("_target_", "")):
+        raise ValueError(f"trainer.strategy={strategy} in a sweep needs the SLURM launcher (hydra/launcher=runs_slurm): "
+                         "Lightning's local DDP launcher would run the whole sweep again in every rank")
+    if is_rank_zero():
+        state = member_state(folder, overrides)
+    else:  # the other SLURM tasks of a DDP member follow rank 0 (samp.train attaches them to its folder)
+        state = "skip" if RunFolder(folder).read().get("status") == "completed" else "new"
+    if state == "skip":
+        print(f"{folder.name}: completed earlier, skipped", flush=True)
+        return RunFolder(folder).read().get("metrics")
+    quoted = "'" + str(folder).replace("\\", "\\\\").replace("'", "\\'") + "'"  # member names hold = and ,
+    where = f"resume={quoted}" if state == "resume" else f"run_dir={quoted}"
+    sweep = {"dir": str(Path(hc.sweep.dir).resolve()), "member": hc.job.override_dirname}
+    with _outside_hydra():
+        run = train([*overrides, where], sweep=sweep)
+    return run.read().get("metrics")

@@ -112,6 +112,7 @@ class World:
         if not (np.isfinite(max_distance) and max_distance > 0):
             raise ValueError(f"max_distance must be a positive number of metres, got {max_distance!r}")
         self.robot, self.scene, self.max_distance = robot, scene, float(max_distance)
+        self._renderer = None  # depth cameras: a samp.sim.camera.Renderer, made on the first capture
         self.client: int | None = pb.connect(pb.DIRECT)
         try:
             self.links = LinkBodies(robot, client=self.client)
@@ -146,7 +147,10 @@ class World:
         self.close()
 
     def close(self) -> None:
-        """Disconnect the pybullet client; safe to call more than once."""
+        """Disconnect the pybullet client (and the cameras' renderer); safe to call more than once."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         if self.client is not None and pb.isConnected(self.client):
             pb.disconnect(self.client)
         self.client = None
@@ -195,6 +199,25 @@ class World:
         """q (B, n) -> (B,) bool: some joint is outside its limits by more than LIMIT_TOLERANCE."""
         q = self._check_q(q)
         return np.any((q < self._lower) | (q > self._upper), axis=1)
+
+    # ----------------------------------------------------------------- depth cameras
+    def depth_images(self, cameras, q=None, seed: int | None = None) -> list:
+        """Render a camera set (`samp.sim.camera.load_camera_set`: a CameraSet, a conf/camera name or a
+        YAML path) with the robot at q (n,) radians (default: its home configuration) -> one
+        `DepthImage` per camera; noise seeded by `seed` (default: the set's seed)."""
+        from samp.sim.camera import Renderer, load_camera_set
+
+        if self.client is None:
+            raise RuntimeError("this World is closed; create a new World(robot, scene) to render it")
+        q = self.robot.home.cpu().numpy() if q is None else self._check_q(np.asarray(q, dtype=np.float64)[None])[0]
+        if self._renderer is None:
+            self._renderer = Renderer(self.robot, self.scene)
+        return self._renderer.capture(load_camera_set(cameras), q, seed)
+
+    def capture(self, cameras, q=None, seed: int | None = None) -> list:
+        """`depth_images` back-projected: one `samp.perception.Scan` per camera, base frame, the robot's
+        own pixels removed from the points (their rays kept as free space)."""
+        return [image.scan() for image in self.depth_images(cameras, q, seed)]
 
     # ----------------------------------------------------------------- validation
     def _check_q(self, q) -> np.ndarray:

@@ -1,0 +1,204 @@
+"""Point clouds: one sensor's observation (`Scan`) and reading/writing clouds as PLY or NPY files.
+
+A `Scan` is what reconstruction needs from one depth image: the sensor position and, in the robot base
+frame, the surface points it measured (`hits`) and the ends of rays that met no obstacle (`free_ends`:
+pixels with no return, up to the far plane, and pixels on the robot itself, up to the robot). The space
+along every ray up to its end is seen free; without an `origin` nothing is known to be free.
+
+Files hold points only. PLY: ascii, binary_little_endian or binary_big_endian, a `vertex` element
+with float or double `x`, `y`, `z` properties (other properties and elements are skipped; list
+properties are allowed after the vertex element only). NPY: a float array (N, 3), or (..., 3) such as an
+organised (H, W, 3) cloud; non-finite points (a sensor's invalid pixels) are dropped on reading.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["DepthView", "Scan", "load_point_cloud", "save_point_cloud", "scan_from_file"]
+
+PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+             "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+             "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+PLY_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
+
+
+def _points(array, what: str) -> np.ndarray:
+    """Any (N, 3)-like array -> (N, 3) float64; ValueError naming `what` otherwise."""
+    arr = np.asarray(array, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{what} must be an (N, 3) array of points in metres, got shape {arr.shape}")
+    return arr
+
+
+@dataclass
+class DepthView:
+    """The depth image a scan came from, for projective free-space carving (no gaps between rays).
+
+    Args:
+        depth: (H, W) metres along the optical axis per pixel: the measured surface, the robot's surface
+            (free up to it), or the far plane (no return: free up to it); NaN: no information.
+        intrinsics: (fx, fy, cx, cy) pixels, OpenCV convention; pose: (4, 4) camera -> base, optical axes.
+    """
+
+    depth: np.ndarray
+    intrinsics: tuple[float, float, float, float]
+    pose: np.ndarray
+
+
+@dataclass
+class Scan:
+    """One sensor's observation in the robot base frame (metres).
+
+    Args:
+        hits: (N, 3) measured obstacle surface points.
+        origin: (3,) sensor position, or None when unknown (then no free space is observed).
+        free_ends: (K, 3) ends of rays seen free all the way (no return, or the robot's own surface).
+        name: the sensor's name, for records and drawings.
+        view: the depth image, when the scan is one (then free space is carved from it, not from rays).
+    """
+
+    hits: np.ndarray
+    origin: np.ndarray | None = None
+    free_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    name: str = "cloud"
+    view: DepthView | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        self.hits = _points(self.hits, f"scan {self.name!r}: hits")
+        self.free_ends = _points(self.free_ends, f"scan {self.name!r}: free_ends")
+        if self.origin is not None:
+            self.origin = np.asarray(self.origin, dtype=np.float64).reshape(-1)
+            if self.origin.shape != (3,) or not np.all(np.isfinite(self.origin)):
+                raise ValueError(f"scan {self.name!r}: origin must be a finite (3,) sensor position, got {self.origin}")
+        elif len(self.free_ends):
+            raise ValueError(f"scan {self.name!r}: free_ends need the sensor origin they start from")
+        if not (np.all(np.isfinite(self.hits)) and np.all(np.isfinite(self.free_ends))):
+            raise ValueError(f"scan {self.name!r}: points must be finite; drop NaN or inf points first")
+
+
+# ----------------------------------------------------------------------------------------------- reading
+def _ply_header(f, path: Path) -> tuple[str, list[tuple[str, int, list]]]:
+    """Parse a PLY header: (format, [(element, count, [(property, dtype or ('list', count, item))])])."""
+    if f.readline().strip() != b"ply":
+        raise ValueError(f"{path} is not a PLY file: it does not start with the line 'ply'")
+    fmt, elements = None, []
+    for raw in iter(f.readline, b""):
+        words = raw.decode("ascii", errors="replace").split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "end_header":
+            if fmt is None:
+                raise ValueError(f"{path}: the PLY header has no 'format' line")
+            return fmt, elements
+        if words[0] == "format":
+            if len(words) < 2 or words[1] not in PLY_FORMATS:
+                raise ValueError(f"{path}: unknown PLY format {' '.join(words[1:])!r}; expected one of {list(PLY_FORMATS)}")
+            fmt = words[1]
+        elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property" and elements:
+            if words[1] == "list" and len(words) == 5 and words[2] in PLY_TYPES and words[3] in PLY_TYPES:
+                elements[-1][2].append((words[4], ("list", PLY_TYPES[words[2]], PLY_TYPES[words[3]])))
+            elif len(words) == 3 and words[1] in PLY_TYPES:
+                elements[-1][2].append((words[2], PLY_TYPES[words[1]]))
+            else:
+                raise ValueError(f"{path}: cannot read the PLY header line {raw.decode(errors='replace').strip()!r}")
+        else:
+            raise ValueError(f"{path}: cannot read the PLY header line {raw.decode(errors='replace').strip()!r}")
+    raise ValueError(f"{path}: the PLY header never ends (no 'end_header' line); the file is cut short or not PLY")
+
+
+def _ply_vertices(f, path: Path, fmt: str, elements) -> np.ndarray:
+    """The (N, 3) x, y, z of the vertex element; elements before it must have fixed-size rows."""
+    for name, count, props in elements:
+        if any(isinstance(t, tuple) for _, t in props):
+            raise ValueError(f"{path}: PLY element {name!r} before the vertices has list properties; "
+                             "put the vertex element first")
+        names = [p for p, _ in props]
+        if fmt == "ascii":
+            rows = [f.readline().split() for _ in range(count)]
+            if any(len(r) != len(props) for r in rows):
+                raise ValueError(f"{path}: PLY element {name!r} expects {count} rows of {len(props)} values; the "
+                                 "data is cut short or malformed")
+            data = np.array(rows, dtype=np.float64).reshape(count, len(props))
+            columns = {p: data[:, i] for i, p in enumerate(names)}
+        else:
+            dtype = np.dtype([(p, PLY_FORMATS[fmt] + t) for p, t in props])
+            buf = f.read(dtype.itemsize * count)
+            if len(buf) != dtype.itemsize * count:
+                raise ValueError(f"{path}: PLY element {name!r} needs {dtype.itemsize * count} bytes of data, the "
+                                 f"file has {len(buf)}: it is cut short")
+            data = np.frombuffer(buf, dtype=dtype)
+            columns = {p: data[p] for p in names}
+        if name == "vertex":
+            missing = [a for a in "xyz" if a not in columns]
+            if missing:
+                raise ValueError(f"{path}: the PLY vertex element has properties {names}, missing {missing}")
+            return np.stack([columns[a].astype(np.float64) for a in "xyz"], axis=1)
+    raise ValueError(f"{path}: the PLY file has no 'vertex' element (elements: {[e[0] for e in elements]})")
+
+
+def load_point_cloud(path: str | Path) -> np.ndarray:
+    """Read a `.ply` or `.npy` point cloud -> (N, 3) float64, non-finite points dropped.
+
+    Raises FileNotFoundError for a missing file and ValueError (saying what was wrong) for a bad one.
+    """
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise FileNotFoundError(f"point cloud file {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        with open(path, "rb") as f:
+            fmt, elements = _ply_header(f, path)
+            points = _ply_vertices(f, path, fmt, elements)
+    elif suffix == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except ValueError as err:
+            raise ValueError(f"{path} is not a readable NPY array ({err}); save points with numpy.save") from None
+        if arr.dtype.kind not in "fiu" or arr.ndim < 2 or arr.shape[-1] != 3:
+            raise ValueError(f"{path}: expected a numeric (N, 3) or (..., 3) array of x, y, z, got dtype {arr.dtype} "
+                             f"and shape {arr.shape}")
+        points = arr.reshape(-1, 3).astype(np.float64)
+    else:
+        raise ValueError(f"{path}: unknown point cloud format {path.suffix!r}; expected .ply or .npy")
+    return points[np.isfinite(points).all(axis=1)]
+
+
+def save_point_cloud(path: str | Path, points, ascii: bool = False) -> Path:
+    """Write (N, 3) points as `.ply` (binary little-endian float32, or ascii) or `.npy` (float64)."""
+    path, points = Path(path), _points(points, "points")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() == ".npy":
+        np.save(path, points)
+    elif path.suffix.lower() == ".ply":
+        fmt = "ascii" if ascii else "binary_little_endian"
+        header = (f"ply\nformat {fmt} 1.0\ncomment samp point cloud, robot base frame, metres\n"
+                  f"element vertex {len(points)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
+        with open(path, "wb") as f:
+            f.write(header.encode("ascii"))
+            if ascii:
+                np.savetxt(f, points, fmt="%.7g")
+            else:
+                f.write(points.astype("<f4").tobytes())
+    else:
+        raise ValueError(f"{path}: unknown point cloud format {path.suffix!r}; expected .ply or .npy")
+    return path
+
+
+def scan_from_file(path: str | Path, origin=None, transform=None, name: str | None = None) -> Scan:
+    """A `Scan` from a cloud file: points in the sensor frame moved into the base frame by `transform`
+    (4, 4) sensor -> base (default: the points are already in the base frame). `origin` (3,) is the
+    sensor position in the base frame (default: the transform's translation, or unknown)."""
+    points = load_point_cloud(path)
+    if transform is not None:
+        T = np.asarray(transform, dtype=np.float64)
+        if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
+            raise ValueError(f"transform must be a (4, 4) homogeneous sensor -> base transform, got {T.tolist()}")
+        points = points @ T[:3, :3].T + T[:3, 3]
+        origin = T[:3, 3] if origin is None else origin
+    return Scan(points, origin=origin, name=name or Path(path).stem)

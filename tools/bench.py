@@ -16,6 +16,16 @@ and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites
             the straight-line policy) and of a full evaluation with pybullet checks; baseline: one problem
             at a time. The policy's per-problem solution time against the expert's planning time on
             --expert-problems of the same problems
+    robot_sdf  the paper's Table III in one run: the hash-grid robot SDF, NN-SDF, RDF (N = 8) and RDF
+            (N = 24) trained or fitted on the same samples and evaluated on the same points (minutes on CPU);
+            ratios against the hash grid
+    perception  depth-camera capture and anchor-grid reconstruction per scene at n_e in --anchors (four
+            scenes, --camera set, --unknown policy), against the exact scene.anchor_grid as the baseline, with
+            the reconstruction error near obstacles; with --run, the policy's success rate on exact vs
+            reconstructed grids for --problems held-out problems of --dataset
+    baselines  Table I's timing on --baseline-problems problems: per-step inference (B = 1) and solution time
+            of SAMP, MPiNet, MPNet (the runs in --runs; untrained default-size networks for step times
+            otherwise) and the OMPL expert, expert_raw and ompl_sampling rows, as ratios to SAMP
 """
 
 from __future__ import annotations
@@ -398,6 +408,203 @@ def policy(args) -> tuple[dict, list[list]]:
     return metrics, [["what", "samp", "baseline", "ratio"], *rows]
 
 
+@suite
+def robot_sdf(args) -> tuple[dict, list[list]]:
+    """Table III in one run (`samp.robot_sdf.compare.compare_methods`): the hash-grid SDF and NN-SDF trained
+    by the recipe, RDF with N = 8 and N = 24 fitted on the same samples, all evaluated on the same points.
+    Ratios are each method's error and time over the hash grid's (above 1: the hash grid is better)."""
+    from samp.robot_sdf.compare import compare_methods
+
+    overrides = [f"trainer.accelerator={'gpu' if args.device.startswith('cuda') else 'cpu'}", *args.override]
+    report, folder = compare_methods(args.robot, overrides)
+    methods = report["methods"]
+    ours = next(label for label in methods if "hash" in label.lower() or label.startswith("SAMP"))
+    metrics, rows = {"folder": str(folder), "dataset_id": report["dataset_id"]}, []
+    keys = [("whole_robot", "mae_all_mm"), ("whole_robot", "mae_near_mm"), ("whole_robot", "mae_far_mm"),
+            ("whole_robot", "rmse_all_mm"), ("whole_robot", "rmse_near_mm"), ("whole_robot", "rmse_far_mm")]
+    for label, res in methods.items():
+        for part, key in keys:
+            metrics[f"{label}/{part}/{key}"] = res[part][key]
+        metrics[f"{label}/train_time_s"] = res["train_time_s"]
+        for b, ms in res["infer_ms"].items():
+            metrics[f"{label}/infer_ms_{b}"] = ms
+    for part, key in keys:
+        base = methods[ours][part][key]
+        for label, res in methods.items():
+            rows.append([f"{key} ({part}) {label}", f"{base:.2f} mm", f"{res[part][key]:.2f} mm",
+                         f"{res[part][key] / base:.2f}x"])
+    for label, res in methods.items():
+        rows.append([f"train time {label}", f"{methods[ours]['train_time_s']:.0f} s", f"{res['train_time_s']:.0f} s",
+                     f"{res['train_time_s'] / methods[ours]['train_time_s']:.2f}x"])
+        for b, ms in res["infer_ms"].items():
+            rows.append([f"query {b}x{args.points} points {label}", f"{methods[ours]['infer_ms'][b]:.2f} ms",
+                         f"{ms:.2f} ms", f"{ms / methods[ours]['infer_ms'][b]:.2f}x"])
+    print((Path(folder) / "robot_sdf_table.md").read_text())
+    return metrics, [["what", ours, "method", "ratio"], *rows]
+
+
+@suite
+def perception(args) -> tuple[dict, list[list]]:
+    """Reconstruction from simulated depth cameras: per-scene time at each n_e (baseline: the exact grid in the
+    same run), its error near obstacles, and with --run a trained policy's success on exact vs reconstructed
+    grids for the held-out scenes of --dataset."""
+    from samp.perception import reconstruct_grid, reconstruction_error
+    from samp.robot import load_robot
+    from samp.scene import generate_scene
+    from samp.sim import World
+    from samp.sim.camera import load_camera_set, robot_volume
+
+    robot, cameras = load_robot(args.robot, dtype=torch.float64), load_camera_set(args.camera)
+    scenes = [generate_scene(g, seed=i) for i, g in enumerate(["tabletop", "shelf", "cabinet", "blocks"])]
+    q = robot.home.numpy()
+    t0 = time.perf_counter()
+    captured = []
+    for scn in scenes:
+        with World(robot, scn) as world:
+            captured.append(world.capture(cameras, q))
+    t_capture = (time.perf_counter() - t0) / len(scenes)
+    size = "+".join(sorted({f"{c.width}x{c.height}" for c in cameras.cameras}))
+    metrics = {"scenes": len(scenes), "cameras": len(cameras.cameras), "camera_set": cameras.name,
+               "unknown": args.unknown, "capture_s_per_scene": t_capture}
+    rows = [[f"capture, {len(cameras.cameras)} cameras {size}, per scene", f"{t_capture:.3f} s", "", ""]]
+    for n in args.anchors:
+        t_rec, t_exact, errors = [], [], []
+        for scn, scans in zip(scenes, captured):
+            lo, hi = np.asarray(scn.bounds)
+            free = robot_volume(robot, q, 0.5 * float(np.linalg.norm((hi - lo) / (n - 1))))
+            t0 = time.perf_counter()
+            rec = reconstruct_grid(scans, n, scn.bounds, args.unknown, known_free=free)
+            t_rec.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            exact = scn.anchor_grid(n, cache=False)
+            t_exact.append(time.perf_counter() - t0)
+            errors.append(reconstruction_error(rec.grid, exact))
+        rec_s, exact_s = statistics.mean(t_rec), statistics.mean(t_exact)
+        mae, mae_all = (statistics.mean(e[k] for e in errors) for k in ("mae_near_mm", "mae_all_mm"))
+        metrics.update({f"n{n}/reconstruct_s": rec_s, f"n{n}/exact_grid_s": exact_s, f"n{n}/speed_ratio": exact_s / rec_s,
+                        f"n{n}/mae_near_mm": mae, f"n{n}/mae_all_mm": mae_all})
+        rows.append([f"reconstruct n_e={n}, per scene", f"{rec_s:.3f} s", f"{exact_s:.3f} s (exact grid)",
+                     f"{exact_s / rec_s:.2f}x"])
+        rows.append([f"  error n_e={n}: MAE near obstacles / all", f"{mae:.1f} mm", f"{mae_all:.1f} mm", ""])
+    if args.run is None:
+        metrics["policy/measured"] = False
+        rows.append(["policy success, exact vs reconstructed", "not measured: give --run RUN_DIR", "", ""])
+        return metrics, [["what", "samp", "baseline", "ratio"], *rows]
+    from samp.data import open_dataset
+    from samp.eval import dataset_grids, evaluate, load_planner, problems_from_dataset
+    from samp.eval.checks import exact_robot
+    from samp.perception import ReconstructedGrids
+
+    ds = open_dataset(args.dataset)
+    problems = problems_from_dataset(ds, "heldout", args.problems, seed=0)
+    policy = load_planner(args.run)
+    exact_grids = dataset_grids(ds)
+    source = ReconstructedGrids(cameras, exact_robot(policy.robot), exact=exact_grids, unknown=args.unknown)
+    on_exact = evaluate(policy, problems, grids=exact_grids)["metrics"]["heldout"]
+    on_recon = evaluate(policy, problems, grids=source)["metrics"]["heldout"]
+    metrics.update({"policy/measured": True, "policy/dataset": f"{ds.name}@{ds.id}", "policy/problems": len(problems),
+                    "policy/n_e": policy.n_e, "policy/mae_near_mm": source.report()["mean"]["mae_near_mm"],
+                    **{f"policy/{k}_{which}": m[k] for which, m in (("exact", on_exact), ("reconstructed", on_recon))
+                       for k in ("success_rate", "collision_rate", "reach_rate")}})
+    for k in ("success_rate", "collision_rate", "reach_rate"):
+        rows.append([f"policy {k} ({len(problems)} held-out problems)", f"{on_recon[k]:.1%} reconstructed",
+                     f"{on_exact[k]:.1%} exact", f"{on_recon[k] - on_exact[k]:+.1%}"])
+    return metrics, [["what", "samp", "baseline", "ratio"], *rows]
+
+
+def _baseline_planners(args, bounds) -> tuple[dict, set]:
+    """name -> planner for the `baselines` suite: the runs in --runs (samp, mpinet, mpnet by their names),
+    and untrained networks of the default sizes for those missing; and the names of the untrained ones."""
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from samp.eval import load_planner
+    from samp.paths import conf_dir
+    from samp.policy import SAMPStepPolicy
+    from samp.policy.system import PolicySystem
+    from samp.robot import load_robot
+    from samp.robot_sdf.artifact import describe, net_spec
+    from samp.robot_sdf.model import UnifiedHashSDF
+    from samp.robot_sdf.samples import link_normalisation
+    from samp.train import compose_train_config
+
+    planners = {}
+    for run in args.runs:
+        planner = load_planner(run)
+        planners[planner.name] = planner
+    missing = [k for k in ("samp", "mpinet", "mpnet") if k not in planners]
+    for kind in missing:
+        if kind == "samp":  # an untrained robot SDF of the default architecture costs what a trained one does
+            robot = load_robot(args.robot)
+            kw = {k: v for k, v in OmegaConf.to_container(OmegaConf.load(conf_dir() / "model" / "robot_sdf_hash.yaml")).items()
+                  if not k.startswith("_")}
+            net = UnifiedHashSDF(**{**kw, "num_links": len(robot.link_names)})
+            centres, scales = link_normalisation(robot, 0.02)
+            info = describe(robot, net_spec(net, {**kw, "num_links": len(robot.link_names)}), "bench",
+                            torch.tensor(centres), torch.tensor(scales))
+            system = PolicySystem(robot=args.robot, robot_sdf_payload={"info": info, "state_dict": net.state_dict()})
+        else:
+            system = instantiate(compose_train_config([f"+experiment={kind}", f"robot={args.robot}"]).system)
+        system.hparams.n_e, system.hparams.bounds = args.n_e, bounds
+        system = system.to(torch.device(args.device)).eval()
+        planners[kind] = SAMPStepPolicy(system) if kind == "samp" else system.planner()
+    return planners, set(missing)
+
+
+@suite
+def baselines(args) -> tuple[dict, list[list]]:
+    """Table I's timing columns on CPU: per-step inference and solution time of SAMP, MPiNet, MPNet and
+    the OMPL expert rows on the same --baseline-problems problems (two scenes), as ratios to SAMP."""
+    from samp.eval import ExpertPlanner, Problem, RolloutConfig, rollout
+    from samp.eval.planners import EXPERT_VARIANTS
+    from samp.expert import load_expert_config, sample_problems
+    from samp.robot import load_robot
+    from samp.scene import generate_scene
+
+    exact = load_robot(args.robot, dtype=torch.float64)
+    scenes = [generate_scene("tabletop", seed=0), generate_scene("shelf", seed=1)]
+    problems, per_scene = [], -(-args.baseline_problems // len(scenes))
+    for i, scn in enumerate(scenes):
+        drawn = sample_problems(exact, scn, per_scene + 5, seed=i, cfg=load_expert_config())
+        problems += [Problem(scn, p.q_start, p.q_goal, split="train", name=f"bench{i}/{k}", robot=exact.name)
+                     for k, p in enumerate(drawn) if p.q_goal is not None][:per_scene]
+    planners, untrained = _baseline_planners(args, scenes[0].bounds)
+    planners["expert"] = ExpertPlanner("plan", exact)
+    for name, overrides in EXPERT_VARIANTS.items():
+        planners[name] = ExpertPlanner("plan", exact, load_expert_config(None, **overrides), name=name)
+    step, solve, solved = {}, {}, {}
+    for name, planner in planners.items():
+        if hasattr(planner, "step"):  # a step policy: rollouts one problem at a time, timed by the engine
+            results = rollout(planner, problems, RolloutConfig(batch_size=1), lambda p, n: p.scene.anchor_grid(n))
+            step[name] = statistics.mean(t for r in results for t in r.step_times)
+            solve[name] = statistics.mean(r.solution_time for r in results)
+            solved[name] = statistics.mean(r.termination == "reached" for r in results)
+            continue
+        if name == "mpnet":  # one network call (B=1); whole plans only with a trained network
+            with torch.no_grad():
+                code = planner.system.net.encode(scenes[0].anchor_grid(planner.n_e)[None].to(planner.system.device))
+                step[name] = timeit(lambda: planner._step(problems[0].q_start, problems[0].q_goal, code),
+                                    torch.device(args.device), min_time=0.05, repeats=3)
+            if name in untrained:
+                continue
+        answers = [planner.plan(p) for p in problems]
+        solve[name] = statistics.mean(a.solution_time for a in answers)
+        solved[name] = statistics.mean(a.trajectory is not None for a in answers)
+    metrics, rows = {"problems": len(problems), "n_e": args.n_e, "untrained": sorted(untrained)}, []
+    for name in planners:
+        s, t, ok = step.get(name), solve.get(name), solved.get(name)
+        metrics.update({f"{name}/{k}": v for k, v in (("step_ms", s and 1e3 * s), ("solution_s", t), ("solved", ok),
+                        ("step_vs_samp", s and s / step["samp"]), ("solution_vs_samp", t and t / solve["samp"]))
+                        if v is not None})
+        cells = ("-",) * 2 if s is None else (f"{1e3 * s:.2f}", f"{s / step['samp']:.2f}x")
+        cells += ("-",) * 2 if t is None else (f"{t:.3f}", f"{t / solve['samp']:.2f}x")
+        rows.append([name + (" (untrained)" if name in untrained else ""), *cells, "-" if ok is None else f"{ok:.0%}"])
+    if untrained:  # rollouts of an untrained policy end at max_steps or a stall, not at the goal
+        print(f"note: {', '.join(sorted(untrained))} untrained (default sizes; pass trained run folders with --runs): "
+              "their step times hold, their solution times and solved shares do not; untrained MPNet does not plan")
+    return metrics, [["planner", "step [ms]", "step vs samp", "solution [s]", "solution vs samp", "reached/planned"], *rows]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("suite", choices=sorted(SUITES))
@@ -413,6 +620,18 @@ def main(argv=None) -> int:
     ap.add_argument("--problems", type=int, default=100, help="eval: problems rolled out (over two scenes)")
     ap.add_argument("--n-e", type=int, default=100, help="eval: anchors per axis of the grids handed to the policy")
     ap.add_argument("--expert-problems", type=int, default=10, help="eval: problems the expert plans afresh")
+    ap.add_argument("--override", nargs="*", default=[], help="robot_sdf: overrides for both network runs, "
+                    "e.g. robot_sdf_samples=tiny trainer.max_steps=200")
+    ap.add_argument("--points", type=int, default=1024, help="robot_sdf: robot points per configuration (label only)")
+    ap.add_argument("--camera", default="default", help="perception: camera set (conf/camera/NAME.yaml or a YAML path)")
+    ap.add_argument("--unknown", default="free", choices=["free", "occupied"],
+                    help="perception: what space no camera saw becomes")
+    ap.add_argument("--run", help="perception: a trained policy's run folder, to compare exact and reconstructed grids")
+    ap.add_argument("--dataset", default="standard", help="perception: the dataset whose held-out scenes --run is "
+                    "evaluated on")
+    ap.add_argument("--runs", nargs="*", default=[], help="baselines: trained run folders (samp, mpinet, mpnet); "
+                    "those missing are timed as untrained networks of the default sizes")
+    ap.add_argument("--baseline-problems", type=int, default=6, help="baselines: problems each planner solves")
     args = ap.parse_args(argv)
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         ap.error("--device cuda was asked for but torch sees no CUDA device")

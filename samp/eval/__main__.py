@@ -1,5 +1,5 @@
 """`python -m samp.eval run=RUN_DIR [split=heldout] [problems=N] [key=value ...]`
-`python -m samp.eval planner=expert|straight dataset=REF [out=DIR] ...`
+`python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] ...`
 
 Evaluates a run's policy (or the expert, or the straight-line baseline) on fixed, seeded problems from a
 dataset's training and held-out scenes, the expert's stored trajectories on the same problems beside it,
@@ -73,7 +73,31 @@ def _planner(cfg, run, ds):
     robot = load_robot(ds.manifest["robot"]["name"])
     if cfg.planner == "straight":
         return load_planner("straight", robot=robot, max_step=cfg.straight_max_step, n_e=cfg.n_e)
+    from samp.eval.planners import EXPERT_VARIANTS
+
+    if cfg.planner in EXPERT_VARIANTS:  # the dataset's expert settings, planned afresh without post-processing
+        from samp.expert import load_expert_config
+
+        config = load_expert_config(ds.manifest.get("config", {}).get("expert_config"), **EXPERT_VARIANTS[cfg.planner])
+        return load_planner("expert", robot=robot, mode="plan", config=config, seed=cfg.seed, name=cfg.planner)
     return load_planner("expert", robot=robot, mode=cfg.expert_mode, seed=cfg.seed)
+
+
+def _grid_source(cfg, ds, planner):
+    """(grid source, its ReconstructedGrids or None): the dataset's exact grids, or grids reconstructed
+    from simulated depth cameras (`grid_source=reconstructed`); collisions are checked exactly either way."""
+    from samp.eval.problems import dataset_grids
+
+    exact = dataset_grids(ds)
+    if cfg.grid_source == "exact":
+        return exact, None
+    from samp.eval.checks import exact_robot
+    from samp.perception.source import ReconstructedGrids
+    from samp.robot import load_robot
+
+    robot = getattr(planner, "robot", None) or load_robot(ds.manifest["robot"]["name"])
+    source = ReconstructedGrids(cfg.camera, exact_robot(robot), exact=exact, unknown=cfg.unknown)
+    return source, source
 
 
 def _out_dir(cfg, run, ds) -> Path:
@@ -99,7 +123,7 @@ def _evaluate(overrides: list[str]) -> Path:
     from samp.eval.evaluation import evaluate
     from samp.eval.loading import check_robot, find_checkpoint, load_planner, read_run
     from samp.eval.names import SPLITS
-    from samp.eval.problems import dataset_grids, problems_from_dataset
+    from samp.eval.problems import problems_from_dataset
 
     if (cfg.run is None) == (cfg.planner is None):
         raise ValueError("say what to evaluate: run=RUN_DIR (a trained policy) or planner=expert|straight dataset=REF, "
@@ -113,8 +137,8 @@ def _evaluate(overrides: list[str]) -> Path:
     splits = list(SPLITS) if cfg.split == "both" else [cfg.split]
     problems = [p for s in splits for p in problems_from_dataset(ds, s, cfg.problems, cfg.seed)]
     planner = _planner(cfg, run, ds)
+    grids, reconstruction = _grid_source(cfg, ds, planner)
     out = _out_dir(cfg, run, ds)
-    grids = dataset_grids(ds)
     counts = {s: sum(p.split == s for p in problems) for s in splits}
     print(f"evaluating {planner.name} on {ds.name}@{ds.id}: " + ", ".join(f"{n} {s} problems" for s, n in counts.items()))
     t0 = time.perf_counter()
@@ -128,7 +152,9 @@ def _evaluate(overrides: list[str]) -> Path:
         straight = load_planner("straight", robot=planner.robot if hasattr(planner, "robot") else None,
                                 max_step=cfg.straight_max_step, n_e=cfg.n_e)
         others.append(evaluate(straight, problems, cfg.rollout(), grids=grids))
-    _write(out, cfg, run, ds, problems, planner, result, expert, counts, others)
+    if reconstruction is not None:
+        print("  " + reconstruction.summary())
+    _write(out, cfg, run, ds, problems, planner, result, expert, counts, others, reconstruction)
     return out
 
 
@@ -141,8 +167,9 @@ def evaluate_run(run_dir: str | Path, overrides: list[str] = ()) -> dict:
 
 
 def _write(out: Path, cfg, run, ds, problems, planner, result: dict, expert: dict | None, counts: dict,
-           others: list[dict] = ()) -> None:
-    """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`."""
+           others: list[dict] = (), reconstruction=None) -> None:
+    """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`; with
+    reconstructed grids also their errors (metrics.json "reconstruction") and reconstruction.rrd."""
     from dataclasses import asdict
 
     from samp.eval.metrics import markdown_table
@@ -158,6 +185,8 @@ def _write(out: Path, cfg, run, ds, problems, planner, result: dict, expert: dic
               **{o["planner"]: o["metrics"] for o in others},
               "config": asdict(cfg), "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
               "code_version": code_version()}
+    if reconstruction is not None:
+        report["reconstruction"] = reconstruction.report()
     (out / METRICS_JSON).write_text(json.dumps(report, indent=2))
     (out / METRICS_MD).write_text(f"# {result['planner']} on {ds.name}@{ds.id}\n\n{table}")
     with open(out / PROBLEMS_JSONL, "w") as f:
@@ -171,6 +200,12 @@ def _write(out: Path, cfg, run, ds, problems, planner, result: dict, expert: dic
         path = write_recording(out / RECORDING_RRD, problems, result, expert, robot=getattr(planner, "robot", None),
                                record_rollouts=cfg.record_rollouts, record_points=cfg.record_points, metrics_md=table)
         written.append(f"{RECORDING_RRD} ({path.stat().st_size / 1e6:.1f} MB; open with `rerun {path}`)")
+        if reconstruction is not None and reconstruction.scenes:
+            from samp.eval.names import RECONSTRUCTION_RRD
+            from samp.perception.viz import write_reconstruction_recording
+
+            path = write_reconstruction_recording(out / RECONSTRUCTION_RRD, reconstruction.scenes, reconstruction.cameras)
+            written.append(f"{RECONSTRUCTION_RRD} ({path.stat().st_size / 1e6:.1f} MB)")
     print(f"wrote {out}: " + ", ".join(written))
 
 

@@ -10,7 +10,12 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, ValidationError
 
-__all__ = ["EvalConfig", "RolloutConfig", "load_eval_config", "rollout_config", "tolerance_label"]
+__all__ = ["PLANNERS", "EvalConfig", "RolloutConfig", "load_eval_config", "rollout_config", "tolerance_label"]
+
+# planner=NAME without a run: the expert's stored trajectories, the straight-line baseline, the expert
+# planned afresh without simplification and smoothing (expert_raw), and RRTConnect alone (ompl_sampling);
+# the last two are samp.eval.planners.EXPERT_VARIANTS.
+PLANNERS = ("expert", "straight", "expert_raw", "ompl_sampling")
 
 
 @dataclass
@@ -36,7 +41,7 @@ class EvalConfig:
     """`python -m samp.eval`: which planner on which problems, where the results go, and the rollout."""
 
     run: str | None = None  # a run folder: evaluate its policy checkpoint (best.ckpt, else last.ckpt)
-    planner: str | None = None  # without a run: expert | straight
+    planner: str | None = None  # without a run: one of PLANNERS
     dataset: str | None = None  # dataset reference (name, name@id, folder); default: the run's dataset
     root: str | None = None  # datasets folder (default: datasets/ or $SAMP_DATASETS_DIR)
     split: str = "both"  # train | heldout | both (reported separately)
@@ -45,6 +50,9 @@ class EvalConfig:
     out: str | None = None  # output folder; default RUN/eval, or runs/eval/PLANNER_DATASET without a run
     overwrite: bool = False  # replace the files of an earlier evaluation in `out`
     n_e: int | None = None  # grid resolution handed to the policy (null: the policy's own)
+    grid_source: str = "exact"  # exact (the dataset's grids) | reconstructed (from simulated depth cameras)
+    camera: str = "default"  # grid_source=reconstructed: camera set, conf/camera/NAME.yaml or a YAML path
+    unknown: str = "free"  # grid_source=reconstructed: what space no camera saw becomes: free | occupied
     compare_expert: bool = True  # also evaluate the expert's stored trajectories on the same problems
     compare_straight: bool = False  # also roll out the straight-line baseline on the same problems
     expert_mode: str = "replay"  # replay (stored trajectories and times) | plan (plan afresh with OMPL)
@@ -115,10 +123,12 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
     _require(cfg.split in ("train", "heldout", "both"), "split", "train | heldout | both", cfg.split)
     _require(cfg.problems is None or cfg.problems >= 1, "problems", "null or >= 1", cfg.problems)
     _require(cfg.expert_mode in ("replay", "plan"), "expert_mode", "replay | plan", cfg.expert_mode)
-    _require(cfg.planner in (None, "expert", "straight"), "planner", "expert | straight (or give run=RUN_DIR)",
+    _require(cfg.planner in (None, *PLANNERS), "planner", f"{' | '.join(PLANNERS)} (or give run=RUN_DIR)",
              cfg.planner)
     _require(cfg.record_rollouts >= 0 and cfg.record_points >= 1, "record_rollouts / record_points", ">= 0 / >= 1",
              (cfg.record_rollouts, cfg.record_points))
     _require(cfg.n_e is None or cfg.n_e >= 2, "n_e", "null or an integer >= 2", cfg.n_e)
+    _require(cfg.grid_source in ("exact", "reconstructed"), "grid_source", "exact | reconstructed", cfg.grid_source)
+    _require(cfg.unknown in ("occupied", "free"), "unknown", "occupied | free", cfg.unknown)
     cfg.rollout()  # validates the rollout keys
     return cfg

@@ -17,8 +17,17 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import torch
 
-__all__ = ["EnvBatch", "ExpertPlanner", "PlannedTrajectory", "StepPolicy", "StraightLinePolicy", "TrajectoryPlanner",
-           "clamp_to_limits"]
+__all__ = ["EXPERT_VARIANTS", "EnvBatch", "ExpertPlanner", "PlannedTrajectory", "StepPolicy", "StraightLinePolicy",
+           "TrajectoryPlanner", "clamp_to_limits"]
+
+# Expert rows of the paper's Table I besides the expert itself, as overrides of the dataset's expert config,
+# planned afresh (mode "plan"): the expert's path as planned, before simplification and smoothing; and the
+# sampling planner alone (RRTConnect, no shortcutting, smoothing or straight-line shortcut), our counterpart
+# of "cuRobo (sampling)".
+EXPERT_VARIANTS = {
+    "expert_raw": {"simplify": False, "smooth": False},
+    "ompl_sampling": {"planner": "RRTConnect", "simplify": False, "smooth": False, "direct": False},
+}
 
 
 @dataclass
@@ -139,14 +148,15 @@ class ExpertPlanner:
     mode "replay" (default): the problem's stored expert trajectory and planning time (dataset problems),
     so the expert is judged by the same checks and metrics as a policy without planning again.
     mode "plan": plan afresh with `samp.expert.ExpertPlanner` (OMPL) in the problem's scene; the solution
-    time is its planning time. `config` is an expert config (name, path or mapping), `seed` its seed.
+    time is its planning time. `config` is an expert config (name, path or mapping), `seed` its seed,
+    `name` its label in tables (e.g. an `EXPERT_VARIANTS` key).
     """
 
-    def __init__(self, mode: str = "replay", robot=None, config=None, seed: int = 0):
+    def __init__(self, mode: str = "replay", robot=None, config=None, seed: int = 0, name: str = "expert"):
         if mode not in ("replay", "plan"):
             raise ValueError(f"expert mode must be 'replay' or 'plan', got {mode!r}")
         self.mode, self.robot, self.config, self.seed = mode, robot, config, int(seed)
-        self.name = "expert"
+        self.name = name
         self._planners: dict[str, object] = {}
 
     def plan(self, problem) -> PlannedTrajectory:

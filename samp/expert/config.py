@@ -67,6 +67,7 @@ class ExpertConfig:
     resolution: float = 0.02  # motion-check step, joint-space Euclidean distance (radians)
     clearance: float = 0.015  # planning: every state at least this far from obstacles
     check_margin: float = 0.005  # final dense check of the 50-waypoint trajectory: at least this far
+    direct: bool = True  # take the straight joint-space motion when it is valid, without planning
     simplify: bool = True  # OMPL PathSimplifier.simplifyMax (shortcutting, no time limit: deterministic)
     smooth: bool = True  # OMPL PathSimplifier.smoothBSpline
     waypoints: int = 50

@@ -127,7 +127,7 @@ class ExpertPlanner:
         reason = self.endpoint_problem(q_start, "start") or self.endpoint_problem(q_goal, "goal")
         if reason:
             return finish(False, None, reason)
-        direct = bool(self.valid(segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]).all())
+        direct = cfg.direct and bool(self.valid(segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]).all())
         for attempt in range(cfg.attempts):
             stats["attempts"] = attempt + 1
             path, reason = self._attempt(q_start, q_goal, derive_seed(seed, attempt), direct, stats)

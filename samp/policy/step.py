@@ -41,9 +41,15 @@ class SAMPStepPolicy:
 
 
 def load_policy(checkpoint: str | Path, run_dir: str | Path | None = None, **options) -> SAMPStepPolicy:
-    """A `SAMPStepPolicy` from a policy checkpoint (the run folder is not needed: the checkpoint is whole)."""
+    """A `SAMPStepPolicy` from a policy checkpoint (the run folder is not needed: the checkpoint is whole).
+    A baseline's checkpoint (MPiNet, MPNet) gives that baseline's planner (`samp.policy.baselines`)."""
     from samp.policy.system import PolicySystem
 
+    # Memory-mapped: only the record's keys are read here, not the weights.
+    if "baseline" in torch.load(checkpoint, map_location="cpu", weights_only=False, mmap=True):
+        from samp.policy.baselines import planner_from_checkpoint
+
+        return planner_from_checkpoint(checkpoint, **options)
     if options:
         raise ValueError(f"load_policy takes no options, got {sorted(options)}")
     return SAMPStepPolicy(PolicySystem.from_checkpoint(checkpoint).eval())

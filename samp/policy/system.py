@@ -50,12 +50,19 @@ def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
                             f"+experiment=robot_sdf_{robot}` or set system.robot_sdf to a run folder or artifact")
 
 
-def _build_robot_sdf(robot: str, runs_dir: str | Path | None) -> Path:
-    """Train the robot SDF experiment of `robot` (its own run folder) and return that folder."""
+def _buildable(ref: str, robot: str) -> bool:
+    """Whether `ref` names a robot SDF experiment of `robot` in conf/experiment/ (robot_sdf_<robot>[_...])."""
+    from samp.paths import conf_dir
+
+    return ref.startswith(f"robot_sdf_{robot}") and (conf_dir() / "experiment" / f"{ref}.yaml").is_file()
+
+
+def _build_robot_sdf(experiment: str, runs_dir: str | Path | None) -> Path:
+    """Train the robot SDF experiment `experiment` (its own run folder) and return that folder."""
     from samp.train import train
 
-    print(f"robot SDF for {robot!r} is not trained yet: running +experiment=robot_sdf_{robot}", flush=True)
-    overrides = [f"+experiment=robot_sdf_{robot}"] + ([f"paths.runs_dir={runs_dir}"] if runs_dir else [])
+    print(f"robot SDF {experiment!r} is not trained yet: running +experiment={experiment}", flush=True)
+    overrides = [f"+experiment={experiment}"] + ([f"paths.runs_dir={runs_dir}"] if runs_dir else [])
     return train(overrides).path
 
 
@@ -81,7 +88,8 @@ class PolicySystem(pl.LightningModule):
         collision_loss: False drops L_coll (ablation). robot_sdf_feature: False feeds zeros instead of
             the robot SDF values to the network (ablation); the collision weights still use it.
         runs_dir: where a robot SDF given as an experiment name is looked up (default: runs/).
-        build_robot_sdf: when `robot_sdf` is `robot_sdf_<robot>` and no such run exists, train it first.
+        build_robot_sdf: when `robot_sdf` names a robot SDF experiment of this robot (conf/experiment/
+            robot_sdf_<robot>*.yaml) and no completed run of it exists, train it first.
         eval_problems: problems per split for the evaluation after training (`evaluate_run`); 0: none.
         lr, weight_decay: AdamW. restart_epochs, restart_mult: CosineAnnealingWarmRestarts T_0, T_mult.
         n_e, bounds, dataset_id: filled in from the DataModule at fit time and saved with the weights.
@@ -107,9 +115,9 @@ class PolicySystem(pl.LightningModule):
             try:
                 source = resolve_robot_sdf(robot_sdf, runs_dir)
             except FileNotFoundError:
-                if not (build_robot_sdf and robot_sdf == f"robot_sdf_{robot}"):
+                if not (build_robot_sdf and _buildable(robot_sdf, robot)):
                     raise
-                source = _build_robot_sdf(robot, runs_dir)
+                source = _build_robot_sdf(robot_sdf, runs_dir)
             info, state, path = _read(source)
             robot_sdf_payload = {"info": info, "state_dict": state, "artifact_id": artifact_id(path), "path": str(path)}
         self._robot_sdf_payload = robot_sdf_payload
@@ -218,7 +226,8 @@ class PolicySystem(pl.LightningModule):
 
     def evaluate_run(self, run_dir: str | Path) -> dict:
         """After training (`samp.train`): roll the final policy out on training and held-out problems,
-        beside the expert and the straight-line baseline; writes `<run>/eval/` and returns flat metrics."""
+        beside the expert and the straight-line baseline; writes `<run>/eval/` and `<run>/plots/summary.png`
+        and returns flat metrics."""
         if not self.hparams.eval_problems:
             return {}
         from samp.eval.__main__ import evaluate_run
@@ -228,6 +237,14 @@ class PolicySystem(pl.LightningModule):
         if dm is not None and dm.root:
             overrides.append(f"root={dm.root}")
         report = evaluate_run(run_dir, overrides)
+        try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
+            from samp.runs.plots import plot_run_summary
+            from samp.runs.registry import load_run
+
+            path = plot_run_summary(load_run(run_dir), Path(run_dir) / "plots" / "summary.png")
+            print(f"plot: {path}", flush=True)
+        except Exception as err:  # noqa: BLE001 - reported, not raised
+            print(f"warning: the summary plot was not written ({type(err).__name__}: {err})", flush=True)
         flat = {}
         for planner, key in (("samp", "metrics"), ("expert", "expert"), ("straight", "straight")):
             for split, m in (report.get(key) or {}).items():

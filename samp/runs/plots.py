@@ -12,7 +12,7 @@ from pathlib import Path
 from samp.runs.registry import Run, check_key
 from samp.runs.tables import fmt
 
-__all__ = ["CURVE_METRICS", "plot_bars", "plot_curves"]
+__all__ = ["CURVE_METRICS", "plot_bars", "plot_curves", "plot_run_summary"]
 
 # EvalCallback's rollout rates over all its problems (samp.eval.callback), the figure's two panels.
 CURVE_METRICS = ("eval/success_rate", "eval/reach_rate")
@@ -91,6 +91,38 @@ def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
         ax.set_xlabel(by)
         ax.set_title(metric)
         ax.grid(axis="y", alpha=0.3)
+    return _save(plt, fig, out)
+
+
+RATES = ("success_rate", "reach_rate", "collision_rate")
+
+
+def plot_run_summary(run: Run, out: Path) -> Path:
+    """One policy run on one page: its train and val losses per step (metrics.csv) and, when it was
+    evaluated, success, reach and collision rate per planner and split (eval/metrics.json)."""
+    evaluated = run.evaluation or {}
+    planners = [(name, evaluated[key]) for name, key in (("policy", "metrics"), ("expert", "expert"),
+                                                          ("straight", "straight")) if evaluated.get(key)]
+    plt, fig, axes = _figure(1 + len(RATES) * bool(planners))
+    rows = run.curves()
+    for metric, style in (("train/loss", "-"), ("val/loss", "o-")):
+        pts = [(row["step"], row[metric]) for row in rows if metric in row and "step" in row]
+        if pts:
+            axes[0].plot(*zip(*pts), style, ms=3, label=metric)
+    axes[0].set_yscale("log")
+    axes[0].set(xlabel="step", title="losses")
+    axes[0].grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    splits = [s for s in ("train", "heldout") if any(s in m for _, m in planners)]
+    for ax, rate in zip(axes[1:], RATES):
+        for i, (name, metrics) in enumerate(planners):
+            xs = [j + (i - (len(planners) - 1) / 2) * 0.25 for j in range(len(splits))]
+            ax.bar(xs, [100 * (metrics.get(s, {}).get(rate) or 0.0) for s in splits], width=0.25, label=name)
+        ax.set_xticks(range(len(splits)), [f"{s} scenes" for s in splits])
+        ax.set(title=rate.replace("_", " ") + " [%]", ylim=(0, 100))
+        ax.grid(axis="y", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{run.get('experiment')}  {run.path.name}", fontsize=9)
     return _save(plt, fig, out)
 
 

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from samp.policy import PolicyConfig, SAMPNet, denormalize, normalize, sample_by_scene
+from samp.policy.network import goal_features
 from samp.scene.grid import sample_grid
 
 BOUNDS = ((-1.0, -1.0, 0.05), (1.0, 1.0, 1.25))
@@ -63,3 +64,16 @@ def test_wrong_widths_are_clear_errors():
     feats = net.encode_scenes(torch.randn(1, 8, 8, 8))
     with pytest.raises(ValueError, match="built for 16 points and 7 joints"):
         net(torch.zeros(2, 6), torch.zeros(2, 6), _points(2, 16), torch.zeros(2, 16), feats, torch.zeros(2, dtype=torch.long), BOUNDS)
+
+
+def test_goal_features_are_the_documented_functions_of_start_and_goal():
+    u_t = torch.tensor([[0.0, 0.5, -0.5], [0.2, 0.2, 0.2]])
+    u_g = torch.tensor([[0.3, 0.9, -0.5], [0.2, 0.2, 0.2]])  # second row: at the goal
+    f = goal_features(u_t, u_g, extra=True)
+    d = torch.tensor([[0.3, 0.4, 0.0], [0.0, 0.0, 0.0]])
+    torch.testing.assert_close(f[:, :6], torch.cat([u_t, u_g], dim=1))
+    torch.testing.assert_close(f[:, 6:9], d)
+    torch.testing.assert_close(f[0, 9:12], torch.tensor([0.6, 0.8, 0.0]))  # unit direction of (0.3, 0.4, 0)
+    torch.testing.assert_close(f[1, 9:12], torch.zeros(3))  # no NaN at the goal
+    torch.testing.assert_close(f[:, 12], torch.tensor([0.5, 0.0]))
+    torch.testing.assert_close(goal_features(u_t, u_g, extra=False), torch.cat([u_t, u_g], dim=1))

@@ -57,12 +57,12 @@ def _buildable(ref: str, robot: str) -> bool:
     return ref.startswith(f"robot_sdf_{robot}") and (conf_dir() / "experiment" / f"{ref}.yaml").is_file()
 
 
-def _build_robot_sdf(experiment: str, runs_dir: str | Path | None) -> Path:
-    """Train the robot SDF experiment `experiment` (its own run folder) and return that folder."""
+def _build_robot_sdf(experiment: str, runs_dir: str | Path | None, extra: list[str] = ()) -> Path:
+    """Train the robot SDF experiment `experiment` (its own run folder, `extra` overrides) and return that folder."""
     from samp.train import train
 
-    print(f"robot SDF {experiment!r} is not trained yet: running +experiment={experiment}", flush=True)
-    overrides = [f"+experiment={experiment}"] + ([f"paths.runs_dir={runs_dir}"] if runs_dir else [])
+    overrides = [f"+experiment={experiment}", *([f"paths.runs_dir={runs_dir}"] if runs_dir else []), *extra]
+    print(f"robot SDF {experiment!r} is not trained yet: running {' '.join(overrides)}", flush=True)
     return train(overrides).path
 
 
@@ -89,7 +89,8 @@ class PolicySystem(pl.LightningModule):
             the robot SDF values to the network (ablation); the collision weights still use it.
         runs_dir: where a robot SDF given as an experiment name is looked up (default: runs/).
         build_robot_sdf: when `robot_sdf` names a robot SDF experiment of this robot (conf/experiment/
-            robot_sdf_<robot>*.yaml) and no completed run of it exists, train it first.
+            robot_sdf_<robot>*.yaml) and no completed run of it exists, train it first (with
+            `build_overrides`, e.g. ["robot_sdf_samples=tiny"]).
         eval_problems: problems per split for the evaluation after training (`evaluate_run`); 0: none.
         lr, weight_decay: AdamW. restart_epochs, restart_mult: CosineAnnealingWarmRestarts T_0, T_mult.
         n_e, bounds, dataset_id: filled in from the DataModule at fit time and saved with the weights.
@@ -98,14 +99,15 @@ class PolicySystem(pl.LightningModule):
     def __init__(self, robot: str = "panda", robot_sdf: str | None = None, model: dict | None = None,
                  loss: dict | None = None, collision_loss: bool = True, robot_sdf_feature: bool = True,
                  lr: float = 1e-4, weight_decay: float = 1e-2, restart_epochs: int = 10, restart_mult: int = 2,
-                 runs_dir: str | None = None, build_robot_sdf: bool = False, eval_problems: int = 50,
+                 runs_dir: str | None = None, build_robot_sdf: bool = False, build_overrides: list | None = None,
+                 eval_problems: int = 50,
                  n_e: int | None = None, bounds=None,
                  dataset_id: str | None = None, robot_sdf_payload: dict | None = None):
         super().__init__()
         from samp.robot import load_robot
         from samp.robot_sdf.artifact import _read, artifact_id
 
-        self.save_hyperparameters(ignore=["robot_sdf_payload"])
+        self.save_hyperparameters(ignore=["robot_sdf_payload", "build_overrides"])
         self.robot = load_robot(robot)
         self.robot.requires_grad_(False)
         if robot_sdf_payload is None:  # a new policy: read the artifact the config names
@@ -117,7 +119,7 @@ class PolicySystem(pl.LightningModule):
             except FileNotFoundError:
                 if not (build_robot_sdf and _buildable(robot_sdf, robot)):
                     raise
-                source = _build_robot_sdf(robot_sdf, runs_dir)
+                source = _build_robot_sdf(robot_sdf, runs_dir, list(build_overrides or []))
             info, state, path = _read(source)
             robot_sdf_payload = {"info": info, "state_dict": state, "artifact_id": artifact_id(path), "path": str(path)}
         self._robot_sdf_payload = robot_sdf_payload

@@ -13,9 +13,9 @@ and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites
             scene generator; open_dataset (decoded waypoints per second) and grid decoding against the
             same arrays read from a .npz file
     eval    rollouts per second of the batched engine (--problems problems over two scenes, grids at --n-e,
-            the straight-line policy) and of a full evaluation with pybullet checks; baseline: one problem
-            at a time. The policy's per-problem solution time against the expert's planning time on
-            --expert-problems of the same problems
+            the straight-line policy, or --policy-run RUN_DIR's trained policy at its own n_e) and of a
+            full evaluation with pybullet checks; baseline: one problem at a time. The policy's
+            per-problem solution time against the expert's planning time on --expert-problems of them
     robot_sdf  the paper's Table III in one run: the hash-grid robot SDF, NN-SDF, RDF (N = 8) and RDF
             (N = 24) trained or fitted on the same samples and evaluated on the same points (minutes on CPU);
             ratios against the hash grid
@@ -282,12 +282,21 @@ def eval(args) -> tuple[dict, list[list]]:  # noqa: A001 (the suite's name; shad
         problems += [Problem(scn, p.q_start, p.q_goal, split="train", robot=exact.name)
                      for p in drawn if p.q_goal is not None][:per_scene]
     problems = problems[:args.problems]
+    if args.policy_run:  # a trained policy (its own n_e), else the straight line at --n-e
+        from samp.eval import load_planner
+
+        policy = load_planner(args.policy_run)
+        if hasattr(policy, "system"):
+            policy.system.to(device)
+        args.n_e = policy.n_e
+    else:
+        policy = StraightLinePolicy(load_robot(args.robot, dtype=torch.float32).to(device), n_e=args.n_e)
     grids = {id(s): s.anchor_grid(args.n_e) for s in scenes}  # computed once (disk-cached), as a dataset's
     source = lambda p, n_e: grids[id(p.scene)]  # noqa: E731
-    policy = StraightLinePolicy(load_robot(args.robot, dtype=torch.float32).to(device), n_e=args.n_e)
     batched_cfg, single_cfg = RolloutConfig(), RolloutConfig(batch_size=1)
+    label = policy.name if args.policy_run else "straight"
 
-    def median_time(fn, repeats: int = 3):
+    def median_time(fn, repeats: int = 1 if args.policy_run else 3):
         """(median seconds, last result) over `repeats` calls: the machine may be shared."""
         times = []
         for _ in range(repeats):
@@ -324,7 +333,7 @@ def eval(args) -> tuple[dict, list[list]]:  # noqa: A001 (the suite's name; shad
                "solution/policy_batched_s": statistics.mean(r.solution_time for r in batched),
                "solution/expert_s": statistics.mean(expert_times),
                "solution/expert_vs_policy": statistics.mean(expert_times) / statistics.mean(policy_times),
-               "straight/success_rate": m["success_rate"], "straight/collision_rate": m["collision_rate"]}
+               f"{label}/success_rate": m["success_rate"], f"{label}/collision_rate": m["collision_rate"]}
     rows = [[f"rollouts ({n} problems, n_e={args.n_e}, {statistics.mean(steps):.0f} steps avg)",
              f"{n / t_batched:.1f}/s batched", f"{n / t_single:.1f}/s one at a time", f"{t_single / t_batched:.1f}x"],
             ["rollouts + pybullet checks (evaluate)", f"{n / t_full:.1f}/s batched", f"{n / t_full_single:.1f}/s one at a time",
@@ -334,7 +343,7 @@ def eval(args) -> tuple[dict, list[list]]:  # noqa: A001 (the suite's name; shad
             [f"solution time, {len(subset)} problems", f"{statistics.mean(policy_times) * 1e3:.1f} ms policy (B=1)",
              f"{statistics.mean(expert_times):.3f} s expert planning",
              f"{statistics.mean(expert_times) / statistics.mean(policy_times):.0f}x"],
-            ["straight-line policy (no collision awareness)", f"success {m['success_rate']:.0%}",
+            [f"{label} policy on these problems", f"success {m['success_rate']:.0%}",
              f"collision {m['collision_rate']:.0%}", ""]]
     return metrics, [["what", "samp", "baseline", "ratio"], *rows]
 
@@ -620,6 +629,7 @@ def main(argv=None) -> int:
     ap.add_argument("--problems", type=int, default=100, help="eval: problems rolled out (over two scenes)")
     ap.add_argument("--n-e", type=int, default=100, help="eval: anchors per axis of the grids handed to the policy")
     ap.add_argument("--expert-problems", type=int, default=10, help="eval: problems the expert plans afresh")
+    ap.add_argument("--policy-run", help="eval: a trained policy's run folder (default: the straight-line policy)")
     ap.add_argument("--override", nargs="*", default=[], help="robot_sdf: overrides for both network runs, "
                     "e.g. robot_sdf_samples=tiny trainer.max_steps=200")
     ap.add_argument("--points", type=int, default=1024, help="robot_sdf: robot points per configuration (label only)")

@@ -119,9 +119,9 @@ def plot_run_summary(run: Run, out: Path) -> Path:
             xs = [j + (i - (len(planners) - 1) / 2) * 0.25 for j in range(len(splits))]
             ax.bar(xs, [100 * (metrics.get(s, {}).get(rate) or 0.0) for s in splits], width=0.25, label=name)
         ax.set_xticks(range(len(splits)), [f"{s} scenes" for s in splits])
-        ax.set(title=rate.replace("_", " ") + " [%]", ylim=(0, 100))
+        ax.set(title=rate.replace("_", " ") + " [%]", ylim=(0, 119))
         ax.grid(axis="y", alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=7, ncol=len(planners), loc="upper center")
     fig.suptitle(f"{run.get('experiment')}  {run.path.name}", fontsize=9)
     return _save(plt, fig, out)
 

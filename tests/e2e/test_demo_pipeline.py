@@ -72,3 +72,29 @@ def test_metrics_recording_and_plot_are_there(demo):
     # The run ends by printing the table and where its files are.
     assert "| samp | heldout |" in stdout and "| straight | heldout |" in stdout
     assert f"recording: {recording}" in stdout and f"plots: {run / 'plots' / 'summary.png'}" in stdout
+
+
+def test_the_checkpoint_alone_replays_the_evaluated_rollout(demo):
+    """Reloaded from the run folder in another process, the policy takes exactly the steps recorded by the
+    evaluation at the end of training (problems.jsonl): the run folder alone rebuilds the evaluated model.
+    (That a checkpoint reloads to the in-memory model's outputs is tests/policy/test_policy_system.py's.)"""
+    import torch
+
+    from samp.data import open_dataset
+    from samp.eval import load_planner
+    from samp.eval.planners import EnvBatch
+
+    tmp, run, _ = demo
+    record = next(r for r in map(json.loads, (run / "eval" / "problems.jsonl").read_text().splitlines())
+                  if r["planner"] == "samp" and r["steps"] >= 3)
+    policy = load_planner(run)
+    ds = open_dataset("smoke", tmp / "datasets")
+    scene = ds.scenes[record["scene_index"]]
+    env = EnvBatch(ds.grid(record["scene_index"], policy.n_e)[None].float(),
+                   torch.tensor([scene.bounds], dtype=torch.float32), torch.zeros(1, dtype=torch.long))
+    policy.reset(env)
+    traj = torch.tensor(record["trajectory"], dtype=torch.float32)
+    goal = torch.tensor(record["q_goal"], dtype=torch.float32)[None]
+    for t in range(3):
+        got = policy.step(traj[t][None], goal, env)[0]
+        torch.testing.assert_close(got, traj[t + 1], atol=1e-5, rtol=0, msg=f"step {t}: reloaded policy differs")

@@ -166,6 +166,27 @@ def evaluate_run(run_dir: str | Path, overrides: list[str] = ()) -> dict:
     return json.loads((out / METRICS_JSON).read_text())
 
 
+FLAT_METRICS = ("success_rate", "reach_rate", "collision_rate", "path_length_mean", "solution_time_mean")
+
+
+def evaluate_trained(run_dir: str | Path, name: str, problems: int, root: str | Path | None = None) -> dict:
+    """The evaluation at the end of a training run (a LightningModule's `evaluate_run`): `problems` per
+    split with the expert and the straight line beside the policy, `<run>/eval/` and a summary plot
+    `<run>/plots/summary.png`; returns flat `eval/<name|expert|straight>/<split>/<metric>` values."""
+    overrides = [f"problems={problems}", "compare_straight=true", "overwrite=true"] + ([f"root={root}"] if root else [])
+    report = evaluate_run(run_dir, overrides)
+    try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
+        from samp.runs.plots import plot_run_summary
+        from samp.runs.registry import load_run
+
+        print(f"plot: {plot_run_summary(load_run(run_dir), Path(run_dir) / 'plots' / 'summary.png')}", flush=True)
+    except Exception as err:  # noqa: BLE001 - reported, not raised
+        print(f"warning: the summary plot was not written ({type(err).__name__}: {err})", flush=True)
+    return {f"eval/{planner}/{split}/{metric}": float(m[metric])
+            for planner, key in ((name, "metrics"), ("expert", "expert"), ("straight", "straight"))
+            for split, m in (report.get(key) or {}).items() for metric in FLAT_METRICS if m.get(metric) is not None}
+
+
 def _write(out: Path, cfg, run, ds, problems, planner, result: dict, expert: dict | None, counts: dict,
            others: list[dict] = (), reconstruction=None) -> None:
     """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`; with

@@ -232,28 +232,10 @@ class PolicySystem(pl.LightningModule):
         and returns flat metrics."""
         if not self.hparams.eval_problems:
             return {}
-        from samp.eval.__main__ import evaluate_run
+        from samp.eval.__main__ import evaluate_trained
 
         dm = self.trainer.datamodule if self._trainer is not None else None
-        overrides = [f"problems={self.hparams.eval_problems}", "compare_straight=true", "overwrite=true"]
-        if dm is not None and dm.root:
-            overrides.append(f"root={dm.root}")
-        report = evaluate_run(run_dir, overrides)
-        try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
-            from samp.runs.plots import plot_run_summary
-            from samp.runs.registry import load_run
-
-            path = plot_run_summary(load_run(run_dir), Path(run_dir) / "plots" / "summary.png")
-            print(f"plot: {path}", flush=True)
-        except Exception as err:  # noqa: BLE001 - reported, not raised
-            print(f"warning: the summary plot was not written ({type(err).__name__}: {err})", flush=True)
-        flat = {}
-        for planner, key in (("samp", "metrics"), ("expert", "expert"), ("straight", "straight")):
-            for split, m in (report.get(key) or {}).items():
-                for name in ("success_rate", "reach_rate", "collision_rate", "path_length_mean", "solution_time_mean"):
-                    if m.get(name) is not None:
-                        flat[f"eval/{planner}/{split}/{name}"] = float(m[name])
-        return flat
+        return evaluate_trained(run_dir, "samp", self.hparams.eval_problems, dm.root if dm is not None else None)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, map_location="cpu") -> "PolicySystem":

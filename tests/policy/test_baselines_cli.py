@@ -14,8 +14,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-TINY = {"name": "bl_tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "heldout_scenes": 1,
-        "trajectories_per_scene": 3, "generators": ["tabletop"], "resolutions": [16]}
 COMMON = ["datamodule.n_e=16", "trainer.max_steps=50", "trainer.max_epochs=-1", "trainer.log_every_n_steps=2",
           "trainer.enable_progress_bar=false", "datamodule.batch_size=16", "datamodule.noise=0",
           "datamodule.val_samples=32", "system.eval_problems=1", "system.lr=1e-3"]
@@ -26,22 +24,9 @@ SMALL = {"mpinet": ["model.robot_points=48", "model.obstacle_points=64", "model.
                    "system.planning.time_limit=3.0"]}
 
 
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory, robots):
-    """(dataset folder, root): TINY, generated once per session in a folder the baseline tests share."""
-    from samp.data import generate, open_dataset
-    from samp.data.registry import DatasetError
-
-    root = tmp_path_factory.getbasetemp() / "baselines_datasets"
-    try:
-        return open_dataset(TINY["name"], root).path, root
-    except DatasetError:
-        return generate(TINY, root=root, progress=False), root
-
-
 def _train(tmp: Path, root: Path, kind: str) -> Path:
     env = {**os.environ, "SAMP_RUNS_DIR": str(tmp / "runs"), "RERUN_ANALYTICS": "0", "OMP_NUM_THREADS": "1"}
-    args = [f"+experiment={kind}", f"datamodule.dataset={TINY['name']}", f"datamodule.root={root}", *COMMON, *SMALL[kind]]
+    args = [f"+experiment={kind}", "datamodule.dataset=bl_tiny", f"datamodule.root={root}", *COMMON, *SMALL[kind]]
     proc = subprocess.run([sys.executable, "-m", "samp.train", *args], capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     runs = list((tmp / "runs" / kind).iterdir())

@@ -10,33 +10,14 @@ import torch
 from samp.policy.baselines.mpinet import LABELS, MPiNetConfig, MPiNetNet, even_subset, labelled_cloud
 from samp.policy.baselines.mpinet_system import MPiNetSystem, hinge_collision_loss
 
-TINY = {"name": "bl_tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "heldout_scenes": 1,
-        "trajectories_per_scene": 3, "generators": ["tabletop"], "resolutions": [16]}
 SMALL = {"robot_points": 48, "obstacle_points": 64, "target_points": 16,
          "levels": [{"centres": 32, "radius": 0.15, "neighbours": 8, "widths": [16, 32]}],
          "global_widths": [32, 64], "config_hidden": [16], "decoder_hidden": [64]}
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory, robots):
-    """(dataset folder, root): TINY, generated once per session in a folder the baseline tests share."""
-    from samp.data import generate, open_dataset
-    from samp.data.registry import DatasetError
-
-    root = tmp_path_factory.getbasetemp() / "baselines_datasets"
-    try:
-        return open_dataset(TINY["name"], root).path, root
-    except DatasetError:
-        return generate(TINY, root=root, progress=False), root
-
-
-@pytest.fixture(scope="module")
-def dm(tiny):
-    from samp.data.module import TrajectoryDataModule
-
-    module = TrajectoryDataModule(str(tiny[0]), n_e=16, batch_size=16, noise=0.0)
-    module.setup()
-    return module
+def dm(tiny_datamodule):
+    return tiny_datamodule(16)
 
 
 def _system(dm, **kw) -> MPiNetSystem:

@@ -12,31 +12,12 @@ from samp.policy.baselines.mpnet import MPNetConfig, MPNetNet, set_dropout
 from samp.policy.baselines.mpnet_planner import MPNetPlanConfig, densify
 from samp.policy.baselines.mpnet_system import MPNetSystem, next_config_loss
 
-TINY = {"name": "bl_tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "heldout_scenes": 1,
-        "trajectories_per_scene": 3, "generators": ["tabletop"], "resolutions": [16]}
 SMALL = {"channels": [4, 8], "code": 16, "hidden": [64, 32], "dropout": 0.2}
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory, robots):
-    """(dataset folder, root): TINY, generated once per session in a folder the baseline tests share."""
-    from samp.data import generate, open_dataset
-    from samp.data.registry import DatasetError
-
-    root = tmp_path_factory.getbasetemp() / "baselines_datasets"
-    try:
-        return open_dataset(TINY["name"], root).path, root
-    except DatasetError:
-        return generate(TINY, root=root, progress=False), root
-
-
-@pytest.fixture(scope="module")
-def dm(tiny):
-    from samp.data.module import TrajectoryDataModule
-
-    module = TrajectoryDataModule(str(tiny[0]), n_e=16, batch_size=32, noise=0.0)
-    module.setup()
-    return module
+def dm(tiny_datamodule):
+    return tiny_datamodule(32)
 
 
 def _system(dm, **kw) -> MPNetSystem:

@@ -17,8 +17,6 @@ from samp.policy.system import NonFiniteLossError
 
 __all__ = ["BaselineSystem", "check_env"]
 
-EVAL_METRICS = ("success_rate", "reach_rate", "collision_rate", "path_length_mean", "solution_time_mean")
-
 
 def check_env(system, env) -> None:
     """Refuse an `EnvBatch` whose bounds or grid resolution differ from what `system` was trained on."""
@@ -106,19 +104,10 @@ class BaselineSystem(pl.LightningModule):
         problems, checks and `eval/metrics.json` format, the expert and the straight line beside it)."""
         if not self.hparams.eval_problems:
             return {}
-        from samp.eval.__main__ import evaluate_run
+        from samp.eval.__main__ import evaluate_trained
 
         dm = self.trainer.datamodule if self._trainer is not None else None
-        overrides = [f"problems={self.hparams.eval_problems}", "compare_straight=true", "overwrite=true"]
-        if dm is not None and dm.root:
-            overrides.append(f"root={dm.root}")
-        report = evaluate_run(run_dir, overrides)
-        flat = {}
-        for planner, key in ((self.kind, "metrics"), ("expert", "expert"), ("straight", "straight")):
-            for split, m in (report.get(key) or {}).items():
-                flat.update({f"eval/{planner}/{split}/{name}": float(m[name]) for name in EVAL_METRICS
-                             if m.get(name) is not None})
-        return flat
+        return evaluate_trained(run_dir, self.kind, self.hparams.eval_problems, dm.root if dm is not None else None)
 
     @classmethod
     def from_checkpoint(cls, checkpoint: str | Path | dict, map_location="cpu"):

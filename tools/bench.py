@@ -342,7 +342,7 @@ def eval(args) -> tuple[dict, list[list]]:  # noqa: A001 (the suite's name; shad
              f"{step_single * n / step_batched:.1f}x per problem"],
             [f"solution time, {len(subset)} problems", f"{statistics.mean(policy_times) * 1e3:.1f} ms policy (B=1)",
              f"{statistics.mean(expert_times):.3f} s expert planning",
-             f"{statistics.mean(expert_times) / statistics.mean(policy_times):.0f}x"],
+             f"{statistics.mean(expert_times) / statistics.mean(policy_times):.2f}x"],
             [f"{label} policy on these problems", f"success {m['success_rate']:.0%}",
              f"collision {m['collision_rate']:.0%}", ""]]
     return metrics, [["what", "samp", "baseline", "ratio"], *rows]

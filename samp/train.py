@@ -285,7 +285,7 @@ def _print_outputs(path: Path) -> None:
     if table.is_file():
         print("\n" + table.read_text().strip() + "\n")
     print(f"done: {path}")
-    for name, found in (("recording", sorted(path.glob(f"**/{RECORDING_RRD}")) + sorted(path.glob("*.rrd"))),
+    for name, found in (("recording", sorted({*path.glob(f"**/{RECORDING_RRD}"), *path.glob("*.rrd")})),
                         ("plots", sorted(path.glob("plots/*.png")))):
         for item in found:
             print(f"  {name}: {item}" + (f"   (open with: rerun {item})" if item.suffix == ".rrd" else ""))

@@ -100,9 +100,8 @@ class PolicySystem(pl.LightningModule):
                  loss: dict | None = None, collision_loss: bool = True, robot_sdf_feature: bool = True,
                  lr: float = 1e-4, weight_decay: float = 1e-2, restart_epochs: int = 10, restart_mult: int = 2,
                  runs_dir: str | None = None, build_robot_sdf: bool = False, build_overrides: list | None = None,
-                 eval_problems: int = 50,
-                 n_e: int | None = None, bounds=None,
-                 dataset_id: str | None = None, robot_sdf_payload: dict | None = None):
+                 eval_problems: int = 50, n_e: int | None = None, bounds=None, dataset_id: str | None = None,
+                 robot_sdf_payload: dict | None = None):
         super().__init__()
         from samp.robot import load_robot
         from samp.robot_sdf.artifact import _read, artifact_id

@@ -98,3 +98,10 @@ def test_the_checkpoint_alone_replays_the_evaluated_rollout(demo):
     for t in range(3):
         got = policy.step(traj[t][None], goal, env)[0]
         torch.testing.assert_close(got, traj[t + 1], atol=1e-5, rtol=0, msg=f"step {t}: reloaded policy differs")
+
+
+def test_an_unknown_experiment_lists_the_available_ones():
+    out = subprocess.run([sys.executable, "-m", "samp.train", "+experiment=quikstart"], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 2, (out.returncode, out.stderr[-2000:])
+    assert "Could not find 'experiment/quikstart'" in out.stderr and "quickstart" in out.stderr, out.stderr[-2000:]

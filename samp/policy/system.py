@@ -242,6 +242,9 @@ class PolicySystem(pl.LightningModule):
         ckpt = torch.load(path, map_location=map_location, weights_only=False)
         if "robot_sdf_payload" not in ckpt or "policy" not in ckpt:
             raise ValueError(f"{path} is not a SAMP policy checkpoint (no robot SDF or policy record inside)")
-        system = cls(**ckpt["hyper_parameters"], robot_sdf_payload=ckpt["robot_sdf_payload"])
+        hparams = dict(ckpt["hyper_parameters"])
+        if "goal_features" not in ckpt["policy"]["net"]:  # saved before goal features existed: the paper's MLP_I
+            hparams["model"] = {**(hparams.get("model") or {}), "goal_features": False}
+        system = cls(**hparams, robot_sdf_payload=ckpt["robot_sdf_payload"])
         system.load_state_dict(ckpt["state_dict"])
         return system.eval()

@@ -23,11 +23,40 @@ import torch
 from samp.policy.losses import LossConfig, collision_loss, config_loss, match_loss
 from samp.policy.network import PolicyConfig, SAMPNet, denormalize, normalize
 
-__all__ = ["NonFiniteLossError", "PolicySystem"]
+__all__ = ["NonFiniteLossError", "PolicySystem", "adamw_warm_restarts", "bind_dataset", "check_finite"]
 
 
 class NonFiniteLossError(FloatingPointError):
     """Training produced a NaN or infinite loss (`samp.train` exits 1 with this message)."""
+
+
+def bind_dataset(system: pl.LightningModule, dm, label: str) -> None:
+    """At fit start: refuse a DataModule of another robot, then take its n_e, bounds, dataset id and
+    grids into `system` (the hyperparameters saved with the weights). `label` names the model in errors."""
+    if dm.robot_name != system.hparams.robot or dm.robot_asset_hash != system.robot.asset_hash:
+        raise ValueError(f"dataset {dm.dataset_id} is for robot {dm.robot_name!r}; the {label} is for "
+                         f"{system.hparams.robot!r}: use a dataset generated for this robot")
+    system.hparams.n_e, system.hparams.bounds, system.hparams.dataset_id = dm.n_e, dm.bounds, dm.dataset_id
+    system.grids = dm.grids.to(system.device)
+
+
+def check_finite(system: pl.LightningModule, losses: dict[str, torch.Tensor], label: str) -> None:
+    """Stop training with `NonFiniteLossError` when `losses["loss"]` is NaN or infinite."""
+    if torch.isfinite(losses["loss"]):
+        return
+    parts = ", ".join(f"{k} {v.item():.4g}" for k, v in losses.items() if k != "loss")
+    raise NonFiniteLossError(
+        f"{label} training loss is {losses['loss'].item()} at epoch {system.current_epoch}, step "
+        f"{system.global_step} ({parts}); the last good checkpoint is kept in the run's checkpoints/. "
+        "Lower the learning rate or check the dataset (`python -m samp.data verify`)")
+
+
+def adamw_warm_restarts(system: pl.LightningModule, params) -> dict:
+    """AdamW with cosine warm restarts from `system.hparams` (lr, weight_decay, restart_epochs, restart_mult)."""
+    h = system.hparams
+    opt = torch.optim.AdamW(params, lr=h.lr, weight_decay=h.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(opt, T_0=h.restart_epochs, T_mult=h.restart_mult)
+    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
 
 
 def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
@@ -146,12 +175,7 @@ class PolicySystem(pl.LightningModule):
         return self.robot.joint_limits.to(self.device, torch.float32)
 
     def on_fit_start(self) -> None:
-        dm = self.trainer.datamodule
-        if dm.robot_name != self.hparams.robot or dm.robot_asset_hash != self.robot.asset_hash:
-            raise ValueError(f"dataset {dm.dataset_id} is for robot {dm.robot_name!r}; the policy is for "
-                             f"{self.hparams.robot!r}: use a dataset generated for this robot")
-        self.hparams.n_e, self.hparams.bounds, self.hparams.dataset_id = dm.n_e, dm.bounds, dm.dataset_id
-        self.grids = dm.grids.to(self.device)
+        bind_dataset(self, self.trainer.datamodule, "policy")
 
     def robot_features(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """q (B, n) radians -> T_q(P) (B, M, 3) and the robot SDF there (B, M), no gradients."""
@@ -198,12 +222,7 @@ class PolicySystem(pl.LightningModule):
     # ------------------------------------------------------------------ Lightning hooks
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         losses = self._losses(batch)
-        if not torch.isfinite(losses["loss"]):
-            raise NonFiniteLossError(
-                f"training loss is {losses['loss'].item()} at epoch {self.current_epoch}, step {self.global_step} "
-                f"(match {losses['match'].item():.4g}, coll {losses['coll'].item():.4g}, config "
-                f"{losses['config'].item():.4g}); the last good checkpoint is kept in the run's checkpoints/. "
-                "Lower the learning rate or check the dataset (`python -m samp.data verify`)")
+        check_finite(self, losses, "policy")
         self.log_dict({f"train/{k}": v for k, v in losses.items()}, prog_bar=False, batch_size=len(batch["q"]))
         self.log("loss", losses["loss"], prog_bar=True, logger=False, batch_size=len(batch["q"]))
         return losses["loss"]
@@ -213,10 +232,7 @@ class PolicySystem(pl.LightningModule):
         self.log_dict({f"val/{k}": v for k, v in losses.items()}, prog_bar=False, batch_size=len(batch["q"]))
 
     def configure_optimizers(self):
-        opt = torch.optim.AdamW(self.net.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        sched = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(opt, T_0=self.hparams.restart_epochs,
-                                                                     T_mult=self.hparams.restart_mult)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+        return adamw_warm_restarts(self, self.net.parameters())
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["robot_sdf_payload"] = self._robot_sdf_payload

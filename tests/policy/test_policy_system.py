@@ -116,3 +116,14 @@ def test_robot_sdf_for_another_robot_is_refused(setup):
 def test_missing_robot_sdf_says_how_to_build_it(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"python -m samp.train \+experiment=robot_sdf_panda"):
         PolicySystem(robot="panda", robot_sdf="robot_sdf_panda", runs_dir=str(tmp_path))
+
+
+def test_a_non_finite_loss_stops_training_with_a_message(setup):
+    from samp.policy.system import NonFiniteLossError
+
+    dm, _ = setup
+    system = _system(setup).train()
+    with torch.no_grad():
+        system.net.fusion[-1].bias.fill_(float("nan"))  # a diverged network
+    with pytest.raises(NonFiniteLossError, match=r"policy training loss is nan at epoch 0, step 0 \(match nan.*checkpoints/"):
+        system.training_step(dm.train_samples[torch.arange(8)], 0)

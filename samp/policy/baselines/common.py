@@ -13,7 +13,7 @@ from pathlib import Path
 import pytorch_lightning as pl
 import torch
 
-from samp.policy.system import NonFiniteLossError
+from samp.policy.system import adamw_warm_restarts, bind_dataset, check_finite
 
 __all__ = ["BaselineSystem", "check_env"]
 
@@ -61,11 +61,7 @@ class BaselineSystem(pl.LightningModule):
     # ------------------------------------------------------------------ Lightning hooks
     def on_fit_start(self) -> None:
         dm = self.trainer.datamodule
-        if dm.robot_name != self.hparams.robot or dm.robot_asset_hash != self.robot.asset_hash:
-            raise ValueError(f"dataset {dm.dataset_id} is for robot {dm.robot_name!r}; the {self.kind} model is for "
-                             f"{self.hparams.robot!r}: use a dataset generated for this robot")
-        self.hparams.n_e, self.hparams.bounds, self.hparams.dataset_id = dm.n_e, dm.bounds, dm.dataset_id
-        self.grids = dm.grids.to(self.device)
+        bind_dataset(self, dm, f"{self.kind} model")
         self._fit_data(dm)
 
     def _fit_data(self, dm) -> None:
@@ -73,12 +69,7 @@ class BaselineSystem(pl.LightningModule):
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         losses = self._losses(batch)
-        if not torch.isfinite(losses["loss"]):
-            parts = ", ".join(f"{k} {v.item():.4g}" for k, v in losses.items() if k != "loss")
-            raise NonFiniteLossError(
-                f"{self.kind} training loss is {losses['loss'].item()} at epoch {self.current_epoch}, step "
-                f"{self.global_step} ({parts}); the last good checkpoint is kept in the run's checkpoints/. "
-                "Lower the learning rate or check the dataset (`python -m samp.data verify`)")
+        check_finite(self, losses, self.kind)
         self.log_dict({f"train/{k}": v for k, v in losses.items()}, batch_size=len(batch["q"]))
         self.log("loss", losses["loss"], prog_bar=True, logger=False, batch_size=len(batch["q"]))
         return losses["loss"]
@@ -88,10 +79,7 @@ class BaselineSystem(pl.LightningModule):
         self.log_dict({f"val/{k}": v for k, v in losses.items()}, batch_size=len(batch["q"]))
 
     def configure_optimizers(self):
-        opt = torch.optim.AdamW(self.net.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        sched = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(opt, T_0=self.hparams.restart_epochs,
-                                                                     T_mult=self.hparams.restart_mult)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+        return adamw_warm_restarts(self, self.net.parameters())
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["baseline"] = {"kind": self.kind, "robot": self.robot.name, "robot_asset_hash": self.robot.asset_hash,

@@ -58,7 +58,7 @@ def test_running_the_sweep_again_skips_completed_members(sweep, cli, tiny_sdf):
 
 
 def test_member_completed_with_other_overrides_is_refused_not_skipped(sweep, tiny_sdf):
-    from samp.runs.sweep import member_state
+    from samp.train.sweep import member_state
 
     _, folder, _ = sweep
     same = ["+experiment=robot_sdf_panda", "seed=0", "trainer.max_steps=40",

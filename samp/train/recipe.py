@@ -6,7 +6,7 @@ moves the root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and wh
 `evaluate_run(run_dir) -> metrics` writes. `resume=RUN_DIR` continues a run in its own folder from its
 last checkpoint, with the overrides it was started with (new ones win) and its loggers continuing;
 `run_dir=DIR` puts a new run in a folder of your choice. `-m` / `+sweep=NAME` hand the arguments to the
-Hydra multirun entry point (`samp.runs.sweep`), which calls `train` once per sweep member.
+Hydra multirun entry point (`samp.train.sweep`), which calls `train` once per sweep member.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ __all__ = ["compose_train_config", "main", "train"]
 USAGE = """usage: python -m samp.train +experiment=NAME [key=value ...]   (experiments: conf/experiment/*.yaml)
        python -m samp.train resume=RUN_DIR [key=value ...]    (continue a run from its checkpoints/last.ckpt)
        python -m samp.train -m +sweep=NAME [hydra/launcher=runs_joblib|runs_slurm] [key=value ...]
-                                                             (a sweep: conf/sweep/*.yaml, see samp/runs/sweep.py)"""
+                                                             (a sweep: conf/sweep/*.yaml, see samp/train/sweep.py)"""
 HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
 
 
@@ -258,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         print(USAGE, file=sys.stderr)
         return 2
     if any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv):
-        from samp.runs.sweep import multirun
+        from samp.train.sweep import multirun
 
         return multirun([a for a in argv if a not in ("-m", "--multirun")])
     try:
@@ -290,6 +290,3 @@ def _print_outputs(path: Path) -> None:
         for item in found:
             print(f"  {name}: {item}" + (f"   (open with: rerun {item})" if item.suffix == ".rrd" else ""))
 
-
-if __name__ == "__main__":
-    sys.exit(main())

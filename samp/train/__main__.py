@@ -1,0 +1,5 @@
+import sys
+
+from samp.train.recipe import main
+
+sys.exit(main())

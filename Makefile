@@ -33,7 +33,7 @@ $(STAMP): pyproject.toml
 # by content id afterwards), trains the SAMP policy, evaluates it beside the expert and the straight line,
 # and prints the table and the paths of the run folder, its Rerun recording and its plots.
 demo: install
-	$(PY) -m samp.train +experiment=quickstart
+	$(PY) -m samp.train experiment=quickstart
 
 test: install
 	$(PY) -m pytest -q

@@ -17,7 +17,7 @@ import yaml
 from tqdm import tqdm
 
 from samp.robot import load_robot
-from samp.sim import LinkBodies
+from samp.robot.bodies import LinkBodies
 
 
 def adjacent_pairs(robot) -> set[frozenset]:

@@ -1,4 +1,4 @@
-"""`python -m samp.data COMMAND ...`: generate, merge, list, show, verify and inspect datasets."""
+"""`python -m samp.data COMMAND [key=value ...]`: generate, merge, list, show, verify and inspect datasets."""
 
 from __future__ import annotations
 
@@ -8,22 +8,32 @@ from pathlib import Path
 
 from samp.cli import compose, run_command
 
-USAGE = """usage: python -m samp.data COMMAND ...
-  generate +dataset=NAME [workers=N] [shard=i num_shards=n] [root=DIR]   plan and write a dataset (resumable)
-  merge +dataset=NAME [root=DIR]          join the scene files of all shards into one dataset
-  ls [root=DIR]                           the datasets in the registry
-  show REF                                a dataset's manifest: spec, counts, splits, provenance
-  verify REF                              re-hash every file; names each file that differs (exit 1)
-  inspect REF                             per-scene and per-generator statistics, MCAP channels and schemas
-REF is NAME (the newest), NAME@ID (an id prefix is enough) or a dataset folder. Specs: conf/dataset/."""
+USAGE = """usage: python -m samp.data COMMAND [key=value ...]
+  generate dataset=NAME [workers=N] [shard=i num_shards=n] [root=DIR]   plan and write a dataset (resumable)
+  merge dataset=NAME [root=DIR]         join the scene files of all shards into one dataset
+  ls [root=DIR]                         the datasets in the registry
+  show dataset=REF [root=DIR]           a dataset's manifest: spec, counts, splits, provenance
+  verify dataset=REF [root=DIR]         re-hash every file; names each file that differs (exit 1)
+  inspect dataset=REF [root=DIR]        per-scene and per-generator statistics, MCAP channels and schemas
+For generate and merge, dataset=NAME is a spec, conf/dataset/NAME.yaml (`+dataset=NAME` is read the same),
+and dataset.KEY=VALUE changes one of its settings. Elsewhere REF is NAME (the newest), NAME@ID (an id
+prefix is enough) or a dataset folder, and may be given bare: `python -m samp.data verify quickstart`."""
+
+
+def _help() -> str:
+    from samp.cli import config_names, settings_help, wrap
+
+    return (f"{USAGE}\n\ndataset specs (dataset=NAME; conf/dataset/NAME.yaml):\n{wrap(config_names('dataset'))}\n\n"
+            f"generate and merge options (key=default; conf/data.yaml):\n{settings_help('data')}")
 
 
 def _config(overrides: list[str]):
-    cfg = compose("data", overrides)
+    # conf/data.yaml's defaults list names no dataset: `dataset=NAME` adds the spec, as `+dataset=NAME` does
+    cfg = compose("data", [f"+{o}" if o.startswith("dataset=") else o for o in overrides])
     if "dataset" not in cfg:
         from samp.data.spec import available_specs
 
-        raise ValueError(f"say which dataset spec to use: +dataset=NAME with NAME in {available_specs()}")
+        raise ValueError(f"say which dataset spec to use: dataset=NAME with NAME in {available_specs()}")
     return cfg
 
 
@@ -65,19 +75,19 @@ def _print_summary(folder: Path) -> None:
 
 
 def _parse(args: list[str], needs_ref: bool) -> tuple[str | None, dict]:
-    ref, opts = None, {}
-    for a in args:
-        key, eq, value = a.partition("=")
-        if eq and key in ("root", "ref"):
-            opts[key] = value
-        elif not eq and ref is None:
-            ref = a
-        else:
-            raise ValueError(f"unexpected argument {a!r}; see `python -m samp.data` for usage")
-    ref = ref or opts.pop("ref", None)
-    if needs_ref and not ref:
-        raise ValueError("say which dataset: REF is NAME, NAME@ID or a folder (list them with `python -m samp.data ls`)")
-    return ref, opts
+    """(the dataset reference, the options): `dataset=REF` or a bare REF (`ref=REF`, the older key, too),
+    and `root=DIR`."""
+    from samp.cli import parse_options
+
+    bare, opts, _ = parse_options(args, ("dataset", "ref", "root"), positional="REF" if needs_ref else None,
+                                  command="this command (see `python -m samp.data --help`)")
+    refs = bare + [opts.pop(k) for k in ("dataset", "ref") if k in opts]
+    if len(refs) > 1:
+        raise ValueError(f"one dataset at a time, got {refs}")
+    if needs_ref and not refs:
+        raise ValueError("say which dataset: dataset=REF, with REF a NAME, NAME@ID or folder (list them with "
+                         "`python -m samp.data ls`)")
+    return (refs[0] if refs else None), opts
 
 
 def _ls(args: list[str]) -> None:
@@ -169,7 +179,7 @@ def _inspect(args: list[str]) -> None:
 def main(argv: list[str] | None = None) -> int:
     commands = {"generate": _generate, "merge": _merge, "ls": _ls, "show": _show, "verify": _verify,
                 "inspect": _inspect}
-    return run_command(argv, USAGE, commands)
+    return run_command(argv, _help, commands)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,10 @@ import pytorch_lightning as pl
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
+from samp.data.binding import DatasetBinding
+from samp.names import (BATCH_GOAL, BATCH_NEXT, BATCH_Q, BATCH_SCENE, BATCH_START, BATCH_STEP, BATCH_STEP_CLEAN,
+                        BATCH_TRAJ)
+
 __all__ = ["StepSamples", "TrajectoryDataModule"]
 
 
@@ -46,12 +50,12 @@ class StepSamples(Dataset):
         index = torch.as_tensor(index)
         k, t = self.k[index], self.t[index]
         traj = self.trajectories
-        q = traj[k, t]
+        q = clean = traj[k, t]
         if self.noise > 0:
             q = q + self.noise * torch.randn(q.shape, generator=self.generator, dtype=q.dtype)
             q = torch.minimum(torch.maximum(q, self.limits[:, 0]), self.limits[:, 1])
-        return {"q": q, "q_next": traj[k, t + 1], "q_goal": traj[k, -1], "scene": self.traj_scene[k],
-                "traj": k, "step": t}
+        return {BATCH_Q: q, BATCH_NEXT: traj[k, t + 1], BATCH_GOAL: traj[k, -1], BATCH_SCENE: self.traj_scene[k],
+                BATCH_START: traj[k, 0], BATCH_STEP_CLEAN: clean, BATCH_TRAJ: k, BATCH_STEP: t}
 
 
 class _BatchIndices(Sampler):
@@ -102,16 +106,15 @@ class TrajectoryDataModule(pl.LightningDataModule):
         val_split: "heldout" (validate on the held-out scenes) or a fraction in (0, 1) of the training
             scenes' trajectories. val_samples: steps per validation pass (a fixed, seeded subset).
         max_trajectories: use at most this many training trajectories (None: all), for quick runs.
-        generate_missing: when `dataset` names a spec in conf/dataset/ and no such dataset is built yet,
-            generate it first (with `workers` processes); otherwise a missing dataset is an error.
+
+    After `setup`, `binding` is what a model trained on this data depends on (`DatasetBinding`). A missing
+    dataset is an error here; the training recipe builds it first when asked (`build_missing.dataset`).
     """
 
     def __init__(self, dataset: str, n_e: int = 40, batch_size: int = 50, scenes_per_batch: int = 2,
                  noise: float = 0.03, val_split: str | float = "heldout", val_samples: int = 2000,
-                 max_trajectories: int | None = None, seed: int = 0, root: str | None = None,
-                 generate_missing: bool = False, workers: int = 2):
+                 max_trajectories: int | None = None, seed: int = 0, root: str | None = None):
         super().__init__()
-        self.generate_missing, self.workers = bool(generate_missing), int(workers)
         if not (val_split == "heldout" or (isinstance(val_split, (int, float)) and 0 < val_split < 1)):
             raise ValueError(f"val_split must be 'heldout' or a fraction in (0, 1), got {val_split!r}")
         if batch_size < 1 or scenes_per_batch < 0 or noise < 0:
@@ -121,6 +124,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.scenes_per_batch, self.noise, self.val_split = int(scenes_per_batch), float(noise), val_split
         self.max_trajectories, self.seed, self.root = max_trajectories, int(seed), root
         self.ds = None
+        self.binding: DatasetBinding | None = None
 
     def setup(self, stage: str | None = None) -> None:
         if self.ds is not None:
@@ -128,19 +132,9 @@ class TrajectoryDataModule(pl.LightningDataModule):
         from pathlib import Path
 
         from samp.data.dataset import open_dataset
-        from samp.data.generation import generate
-        from samp.data.registry import DatasetError
-        from samp.data.spec import available_specs
         from samp.robot import load_robot_config
 
-        root = Path(self.root) if self.root else None
-        try:
-            ds = open_dataset(self.ref, root)
-        except DatasetError:
-            if not (self.generate_missing and self.ref in available_specs()):
-                raise
-            print(f"dataset {self.ref!r} is not built yet: generating it from conf/dataset/{self.ref}.yaml", flush=True)
-            ds = open_dataset(generate(self.ref, workers=self.workers, root=root))
+        ds = open_dataset(self.ref, Path(self.root) if self.root else None)
         if self.n_e not in ds.resolutions:
             raise ValueError(f"dataset {ds.name}@{ds.id} stores grids at n_e in {ds.resolutions}, not {self.n_e}: set "
                              f"data.n_e to one of them or regenerate the dataset with n_e in its spec's resolutions")
@@ -153,6 +147,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
         if any(s.bounds != self.bounds for s in ds.scenes):
             raise ValueError(f"dataset {self.dataset_id}: scenes with different workspace bounds cannot share a policy")
         self.grids = ds.grids(self.n_e)  # (S, n, n, n) float32
+        self.binding = DatasetBinding(self.robot_name, self.robot_asset_hash, self.dataset_id, self.n_e, self.bounds,
+                                      self.grids)
         self.trajectories = ds.trajectories.float()
         cfg = load_robot_config(self.robot_name)
         limits = torch.tensor([cfg.lower, cfg.upper], dtype=torch.float32).T

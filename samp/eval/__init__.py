@@ -13,14 +13,14 @@ from importlib import import_module
 
 _EXPORTS = {
     "EvalConfig": "config", "RolloutConfig": "config", "load_eval_config": "config", "rollout_config": "config",
-    "EXPERT_VARIANTS": "planners", "EnvBatch": "planners", "ExpertPlanner": "planners", "PlannedTrajectory": "planners",
+    "EXPERT_VARIANTS": "planners", "EnvBatch": "planners", "ExpertTrajectoryPlanner": "planners", "PlannedTrajectory": "planners",
     "StepPolicy": "planners", "StraightLinePolicy": "planners", "TrajectoryPlanner": "planners",
     "clamp_to_limits": "planners",
     "Problem": "problems", "dataset_grids": "problems", "problems_from_dataset": "problems", "scene_grids": "problems",
     "TrajectoryChecker": "checks", "goal_errors": "checks", "polyline_length": "checks",
-    "RolloutResult": "engine", "rollout": "engine",
+    "RolloutResult": "rollouts", "rollout": "rollouts",
     "markdown_table": "metrics", "summarize": "metrics",
-    "evaluate": "evaluation",
+    "evaluate": "harness",
     "find_checkpoint": "loading", "load_planner": "loading", "read_run": "loading",
     "EvalCallback": "callback",
     "write_recording": "recording",

@@ -1,7 +1,7 @@
 """`EvalCallback`: the rollout evaluation on a fixed subset of problems every k epochs during training.
 
-Contract with the LightningModule: it has a method `step_policy()` that returns a `StepPolicy`
-(`samp.eval.planners`) acting with the module's current weights (the callback calls it at every
+Contract with the LightningModule: it has a method `planner()` that returns a `StepPolicy` or a
+`TrajectoryPlanner` (`samp.policy.interface`) acting with the module's current weights (the callback calls it at every
 evaluation; the module is in eval mode then, as at any validation epoch end).
 
 Every `every_k_epochs` validation epochs the callback rolls the policy out on its problems, logs
@@ -19,13 +19,13 @@ from pathlib import Path
 import pytorch_lightning as pl
 
 from samp.eval.config import rollout_config
+from samp.eval.metrics import logged_metrics, metric
 from samp.eval.names import ALL_SPLITS, BEST_CKPT, CHECKPOINT_DIR, METRIC_PREFIX, SPLITS
 
 __all__ = ["EvalCallback", "LOGGED_METRICS"]
 
-LOGGED_METRICS = ("success_rate", "reach_rate", "collision_rate", "self_collision_rate", "joint_limit_rate",
-                  "path_length_mean", "solution_time_mean", "inference_time_mean", "steps_mean")
-MONITOR = "success_rate"
+LOGGED_METRICS = logged_metrics()  # the registry's (samp.eval.metrics.METRICS) metrics marked `logged`
+MONITOR = metric("success_rate").key  # the score that picks best.ckpt
 
 
 class EvalCallback(pl.Callback):
@@ -75,9 +75,9 @@ class EvalCallback(pl.Callback):
         return self._problems
 
     def setup(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
-        if not callable(getattr(pl_module, "step_policy", None)):
-            raise TypeError(f"EvalCallback needs {type(pl_module).__name__}.step_policy() returning a "
-                            "samp.eval.StepPolicy (see samp/eval/callback.py)")
+        if not callable(getattr(pl_module, "planner", None)):
+            raise TypeError(f"EvalCallback needs {type(pl_module).__name__}.planner() returning a StepPolicy or "
+                            "a TrajectoryPlanner (samp.policy.interface), as every PolicySystemBase has")
         if trainer.is_global_zero:
             self.problems()  # a bad dataset or split fails at the start, not after the first epochs
 
@@ -86,9 +86,9 @@ class EvalCallback(pl.Callback):
         return not trainer.sanity_checking and (trainer.current_epoch + 1) % self.every_k_epochs == 0
 
     def _evaluate(self, pl_module: pl.LightningModule) -> dict[str, float]:
-        from samp.eval.evaluation import evaluate
+        from samp.eval.harness import evaluate
 
-        result = evaluate(pl_module.step_policy(), self.problems(), self.rollout, grids=self._grids)
+        result = evaluate(pl_module.planner(), self.problems(), self.rollout, grids=self._grids)
         flat = {}
         for split, m in result["metrics"].items():
             prefix = METRIC_PREFIX if split == ALL_SPLITS else f"{METRIC_PREFIX}{split}/"

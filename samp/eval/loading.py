@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from samp.eval.names import CHECKPOINT_DIR, CHECKPOINT_PREFERENCE, RUN_JSON
-from samp.eval.planners import ExpertPlanner, StraightLinePolicy
+from samp.eval.planners import ExpertTrajectoryPlanner, StraightLinePolicy
 
 __all__ = ["RunInfo", "check_policy_robot", "check_robot", "find_checkpoint", "load_planner", "read_run"]
 
@@ -112,12 +112,12 @@ def load_planner(source: str | Path, *, robot=None, **options):
     """A planner to `evaluate`.
 
     Args:
-        source: a run folder (its policy checkpoint), "expert" (`ExpertPlanner`: options mode, config,
+        source: a run folder (its policy checkpoint), "expert" (`ExpertTrajectoryPlanner`: options mode, config,
             seed) or "straight" (`StraightLinePolicy`: options max_step, n_e; needs `robot`).
         robot: a robot name or `Robot`, for "straight" and for the expert in mode "plan".
     """
     if str(source) == "expert":
-        return ExpertPlanner(robot=None if robot is None else _robot(robot), **options)
+        return ExpertTrajectoryPlanner(robot=None if robot is None else _robot(robot), **options)
     if str(source) == "straight":
         return StraightLinePolicy(_robot(robot), **options)
     run = read_run(source)

@@ -1,8 +1,9 @@
 """The paper's metrics (DESIGN section 4) from per-problem records, and their markdown table.
 
-A record is one problem's outcome (JSON-ready): `reached` per position tolerance (final end-effector
-position error below it and orientation error below the orientation tolerance), the violations found by
-`samp.eval.checks`, the end-effector path length, the solution time and the per-step inference times.
+A record is one problem's outcome (JSON-ready, `samp.eval.harness`): `reached` per position tolerance
+(final end-effector position error below it and orientation error below the orientation tolerance), the
+violations found by `samp.eval.checks`, the end-effector path length, the solution time and the per-step
+inference times.
 
   success rate   reached and no violation (collision, self-collision, joint limits), per tolerance
   reach rate     reached, whatever happened on the way
@@ -12,15 +13,31 @@ position error below it and orientation error below the orientation tolerance), 
                  problems (a failed path's length says little), and over all problems as `path_length_all`
   solution time  wall time spent producing each trajectory (seconds), over all problems
   inference time wall time per policy step call (seconds), over every step of every problem
+
+`METRICS` below is the one place a metric is defined; everything else reads it: `summarize`
+(metrics.json), `markdown_table` (metrics.md), `EvalCallback` (`logged_metrics()`), the values flattened
+into run.json after training (`flat_metrics()`), and the plots and paper tables of `samp.runs`
+(`metric(name).key`, `metric_keys(...)`).
+
+To add a metric, add one `Metric` to `METRICS` (its place there is its keys' place in metrics.json) and
+change nothing else. Say how a problem's value is read from its record (`value`), how values pool
+(`stats`), over which problems (`over`), and where it shows: a `column` of the table (placed by its
+`rank`), `logged` during training, `flat` in run.json, a `curve` panel. A value the rollout does not
+record yet goes into the record first (`samp.eval.harness`).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from samp.eval.config import RolloutConfig, tolerance_label
 
-__all__ = ["TABLE_COLUMNS", "markdown_table", "reached_within", "summarize"]
+__all__ = ["METRICS", "STATS", "TABLE_COLUMNS", "Column", "Metric", "flat_metrics", "logged_metrics", "markdown_table",
+           "metric", "metric_keys", "reached_within", "summarize", "table_metrics"]
 
 
 def reached_within(position_error: float | None, orientation_error: float | None, cfg: RolloutConfig) -> dict[str, bool]:
@@ -31,76 +48,253 @@ def reached_within(position_error: float | None, orientation_error: float | None
     return {tolerance_label(t): bool(ok and position_error < t) for t in cfg.tolerances()}
 
 
-def _stats(values: list[float]) -> tuple[float | None, float | None]:
-    """(mean, std) with numpy's population std; (None, None) for no values."""
+# ----------------------------------------------------------------- how a metric's values pool
+def _rate(values: list) -> tuple:
+    """The fraction of true values, in [0, 1]."""
+    return (float(np.mean([bool(v) for v in values])) if values else None,)
+
+
+def _mean_std(values: list) -> tuple:
+    """Mean and numpy's population std; None for no values."""
     if not values:
         return None, None
     arr = np.asarray(values, dtype=np.float64)
     return float(arr.mean()), float(arr.std())
 
 
+def _counts(values: list) -> tuple:
+    """{value: how many problems}, in order of first appearance."""
+    counts: dict = {}
+    for v in values:
+        counts[v] = counts.get(v, 0) + 1
+    return (counts,)
+
+
+# stats -> (key suffixes, pooling function returning one value per suffix); the first suffix is the headline
+STATS: dict[str, tuple[tuple[str, ...], Callable[[list], tuple]]] = {
+    "rate": (("",), _rate),
+    "mean_std": (("_mean", "_std"), _mean_std),
+    "mean": (("_mean",), lambda values: _mean_std(values)[:1]),
+    "mean_max": (("_mean", "_max"), lambda values: (_mean_std(values)[0], max(values) if values else None)),
+    "counts": (("",), _counts),
+}
+
+
+# ----------------------------------------------------------------- what a problem's record says
+def violated(record: dict, tol: str) -> bool:
+    """Any physical violation: a collision, a self-collision or a joint limit."""
+    return bool(record["collision"] or record["self_collision"] or record["joint_limit_violation"])
+
+
+def reached(record: dict, tol: str) -> bool:
+    return bool(record["reached"][tol])
+
+
+def succeeded(record: dict, tol: str) -> bool:
+    """Reached within the tolerance labelled `tol`, with no violation."""
+    return reached(record, tol) and not violated(record, tol)
+
+
+def collided(record: dict, tol: str) -> bool:
+    return bool(record["collision"])
+
+
+def recorded(key: str) -> Callable[[dict, str], Any]:
+    """The record's own value at `key`."""
+    return lambda record, tol: record[key]
+
+
+# ----------------------------------------------------------------- the registry
+_SCALE = {"%": 100.0, "ms": 1e3}  # values are fractions, seconds and metres; a column's unit scales them
+
+
+@dataclass(frozen=True)
+class Column:
+    """A column of `markdown_table`: "title [unit]" ("title@2cm [unit]" per tolerance), the value scaled to
+    the unit (% of a fraction, ms of seconds) with `digits` decimals, "mean ± std" for a mean_std metric.
+    Columns sort by `rank`, after planner, split and problems."""
+
+    title: str
+    unit: str
+    digits: int
+    rank: int
+
+    def header(self, label: str | None = None) -> str:
+        return f"{self.title}{'' if label is None else '@' + label} [{self.unit}]"
+
+    def cell(self, values: list) -> str:
+        """`values`: the metric's values under its keys (rate: one; mean_std: mean and std)."""
+        if values[0] is None:
+            return "-"
+        scale = _SCALE.get(self.unit, 1.0)
+        return " ± ".join(f"{v * scale:.{self.digits}f}" for v in values)
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One metric: its name, a problem's value, how the values pool and where the metric shows.
+
+    Its keys in metrics.json are `name` + the suffixes of its `stats` (`STATS`): `collision_rate`;
+    `path_length_mean`, `path_length_std`; a per-tolerance metric also has them at every tolerance
+    (`success_rate@2cm`, `success_rate@1cm`), the bare ones being the stopping tolerance's. The first key
+    (`key`) is the one logged, flattened and plotted.
+
+    Args:
+        name: e.g. "collision_rate", "path_length".
+        value: (record, tolerance label) -> the problem's value; None leaves the problem out (of a rate:
+            counts as false). The label is the stopping tolerance's unless the metric is per tolerance.
+        stats: how the values pool, a key of `STATS`: "rate", "mean_std", "mean", "mean_max", "counts".
+        over: (record, tolerance label) -> whether the problem counts (e.g. `succeeded`); None: all do.
+        per_step: `value` gives a list per problem (one entry per policy step), pooled over every step.
+        per_tolerance: reported at every position tolerance (`RolloutConfig.tolerances()`).
+        column: its column in `markdown_table`, or None.
+        logged: logged as `eval/<key>` during training (`EvalCallback`).
+        flat: flattened into run.json after training (`eval/<planner>/<split>/<key>`); rates are also
+            plotted per planner on the run's summary page (`samp.runs.plots`).
+        curve: a panel of the learning-curve figure (`samp.runs.plots.CURVE_METRICS`).
+    """
+
+    name: str
+    value: Callable[[dict, str], Any]
+    stats: str
+    over: Callable[[dict, str], bool] | None = None
+    per_step: bool = False
+    per_tolerance: bool = False
+    column: Column | None = None
+    logged: bool = False
+    flat: bool = False
+    curve: bool = False
+
+    def __post_init__(self):
+        if self.stats not in STATS:
+            raise ValueError(f"metric {self.name!r}: stats must be one of {sorted(STATS)}, got {self.stats!r}")
+        if self.column is not None and self.stats not in ("rate", "mean_std"):
+            raise ValueError(f"metric {self.name!r}: a table column shows a rate or a mean_std, got {self.stats!r}")
+        if self.curve and not self.logged:
+            raise ValueError(f"metric {self.name!r}: a learning curve plots a logged metric; set logged=True")
+
+    def keys(self, label: str | None = None) -> list[str]:
+        """Its keys in metrics.json, at the tolerance `label` ("2cm") or bare."""
+        return [self.name + suffix + ("" if label is None else "@" + label) for suffix in STATS[self.stats][0]]
+
+    @property
+    def key(self) -> str:
+        """The headline key: `name` for a rate, `name_mean` for a mean."""
+        return self.keys()[0]
+
+    def pool(self, records: list[dict], tol: str) -> tuple:
+        """Its values over `records` at the tolerance labelled `tol`, one per key."""
+        values = [self.value(r, tol) for r in records if self.over is None or self.over(r, tol)]
+        if self.per_step:
+            values = [v for per_problem in values for v in per_problem]
+        if self.stats != "rate":
+            values = [v for v in values if v is not None]
+        return STATS[self.stats][1](values)
+
+
+METRICS: tuple[Metric, ...] = (
+    Metric("success_rate", succeeded, "rate", per_tolerance=True, column=Column("success", "%", digits=1, rank=30),
+           logged=True, flat=True, curve=True),
+    Metric("reach_rate", reached, "rate", per_tolerance=True, column=Column("reach", "%", digits=1, rank=40),
+           logged=True, flat=True, curve=True),
+    Metric("collision_rate", recorded("collision"), "rate", column=Column("collision", "%", digits=1, rank=50),
+           logged=True, flat=True),
+    Metric("self_collision_rate", recorded("self_collision"), "rate",
+           column=Column("self-coll.", "%", digits=1, rank=60), logged=True),
+    Metric("joint_limit_rate", recorded("joint_limit_violation"), "rate",
+           column=Column("joint limits", "%", digits=1, rank=70), logged=True),
+    Metric("violation_rate", violated, "rate"),
+    Metric("path_length", recorded("path_length"), "mean_std", over=succeeded,
+           column=Column("path length", "m", digits=2, rank=20), logged=True, flat=True),
+    Metric("path_length_all", recorded("path_length"), "mean_std"),
+    Metric("solution_time", recorded("solution_time"), "mean_std",
+           column=Column("soln. time", "s", digits=3, rank=10), logged=True, flat=True),
+    Metric("inference_time", recorded("step_times"), "mean_std", per_step=True,
+           column=Column("step", "ms", digits=2, rank=80), logged=True),
+    Metric("steps", recorded("steps"), "mean", logged=True),
+    Metric("collision_depth", recorded("collision_depth"), "mean_max", over=collided),
+    Metric("terminations", recorded("termination"), "counts"),
+)
+
+
+def metric(name: str) -> Metric:
+    """The registered metric `name`; ValueError naming the registered ones."""
+    for m in METRICS:
+        if m.name == name:
+            return m
+    raise ValueError(f"no metric {name!r}; registered: {', '.join(m.name for m in METRICS)}")
+
+
+def metric_keys(*, logged: bool = False, flat: bool = False, curve: bool = False, rate: bool = False) -> tuple[str, ...]:
+    """The headline keys of the metrics that have every property asked for, in `METRICS` order;
+    e.g. `metric_keys(flat=True, rate=True)`: the rates flattened into run.json."""
+    return tuple(m.key for m in METRICS if (m.logged or not logged) and (m.flat or not flat)
+                 and (m.curve or not curve) and (m.stats == "rate" or not rate))
+
+
+def logged_metrics() -> tuple[str, ...]:
+    """Logged as `eval/<key>` and `eval/<split>/<key>` by `EvalCallback` during training."""
+    return metric_keys(logged=True)
+
+
+def flat_metrics() -> tuple[str, ...]:
+    """Flattened into run.json after training, as `eval/<planner>/<split>/<key>`."""
+    return metric_keys(flat=True)
+
+
+def table_metrics() -> tuple[Metric, ...]:
+    """The metrics with a column in `markdown_table`, left to right."""
+    return tuple(sorted((m for m in METRICS if m.column is not None), key=lambda m: m.column.rank))
+
+
+def _check_registry() -> None:
+    keys = [k for m in METRICS for k in m.keys()]
+    if len(set(keys)) != len(keys) or len({m.name for m in METRICS}) != len(METRICS):
+        raise ValueError(f"metric names and keys must be unique, got {keys}")
+    ranks = [m.column.rank for m in table_metrics()]
+    if len(set(ranks)) != len(ranks):
+        raise ValueError(f"table column ranks must be unique, got {ranks}")
+
+
+_check_registry()
+
+
+# ----------------------------------------------------------------- metrics.json and metrics.md
 def summarize(records: list[dict], cfg: RolloutConfig) -> dict:
-    """The metrics of `records` (one problem each); rates are fractions in [0, 1]."""
-    n = len(records)
-    if n == 0:
+    """The metrics of `records` (one problem each); rates are fractions in [0, 1].
+
+    Keys in order: "problems"; the per-tolerance metrics tolerance by tolerance (`success_rate@2cm`,
+    `reach_rate@2cm`, `success_rate@1cm`, ...); the same at the stopping tolerance without the suffix;
+    every other metric in `METRICS` order."""
+    if not records:
         return {"problems": 0}
-    rate = lambda flags: float(np.mean([bool(f) for f in flags]))  # noqa: E731
-    violation = [r["collision"] or r["self_collision"] or r["joint_limit_violation"] for r in records]
     primary = tolerance_label(cfg.position_tolerance)
-    out: dict = {"problems": n}
+    per_tolerance = [m for m in METRICS if m.per_tolerance]
+    out: dict = {"problems": len(records)}
     for label in (tolerance_label(t) for t in cfg.tolerances()):
-        reached = [r["reached"][label] for r in records]
-        out[f"success_rate@{label}"] = rate([a and not v for a, v in zip(reached, violation)])
-        out[f"reach_rate@{label}"] = rate(reached)
-    out["success_rate"], out["reach_rate"] = out[f"success_rate@{primary}"], out[f"reach_rate@{primary}"]
-    out["collision_rate"] = rate(r["collision"] for r in records)
-    out["self_collision_rate"] = rate(r["self_collision"] for r in records)
-    out["joint_limit_rate"] = rate(r["joint_limit_violation"] for r in records)
-    out["violation_rate"] = rate(violation)
-    success = [r["reached"][primary] and not v for r, v in zip(records, violation)]
-    lengths = [r["path_length"] for r, s in zip(records, success) if s and r["path_length"] is not None]
-    out["path_length_mean"], out["path_length_std"] = _stats(lengths)
-    out["path_length_all_mean"], out["path_length_all_std"] = _stats(
-        [r["path_length"] for r in records if r["path_length"] is not None])
-    out["solution_time_mean"], out["solution_time_std"] = _stats(
-        [r["solution_time"] for r in records if r["solution_time"] is not None])
-    out["inference_time_mean"], out["inference_time_std"] = _stats([t for r in records for t in r["step_times"]])
-    out["steps_mean"], _ = _stats([r["steps"] for r in records])
-    depths = [r["collision_depth"] for r in records if r["collision"]]
-    out["collision_depth_mean"], out["collision_depth_max"] = _stats(depths)[0], max(depths) if depths else None
-    terminations: dict[str, int] = {}
-    for r in records:
-        terminations[r["termination"]] = terminations.get(r["termination"], 0) + 1
-    out["terminations"] = terminations
+        for m in per_tolerance:
+            out.update(zip(m.keys(label), m.pool(records, label)))
+    for m in per_tolerance:
+        out.update({bare: out[at] for bare, at in zip(m.keys(), m.keys(primary))})
+    for m in METRICS:
+        if not m.per_tolerance:
+            out.update(zip(m.keys(), m.pool(records, primary)))
     return out
 
 
-TABLE_COLUMNS = ["planner", "split", "problems", "soln. time [s]", "path length [m]", "success [%]", "reach [%]",
-                 "collision [%]", "self-coll. [%]", "joint limits [%]", "step [ms]"]
-
-
-def _pm(mean, std, scale: float = 1.0, digits: int = 3) -> str:
-    return "-" if mean is None else f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}"
-
-
-def _pct(x) -> str:
-    return "-" if x is None else f"{100 * x:.1f}"
+TABLE_COLUMNS = ["planner", "split", "problems", *(m.column.header() for m in table_metrics())]
 
 
 def markdown_table(rows: list[tuple[str, str, dict]], cfg: RolloutConfig) -> str:
-    """(planner, split, metrics) rows -> a markdown table in the paper's Table I/II style; success and
-    reach are given at every tolerance (the stopping tolerance first)."""
+    """(planner, split, metrics) rows -> a markdown table in the paper's Table I/II style; per-tolerance
+    metrics (success, reach) are given at every tolerance, the stopping tolerance first."""
     labels = [tolerance_label(t) for t in cfg.tolerances()]
-    header = TABLE_COLUMNS[:5] + [f"success@{l} [%]" for l in labels] + [f"reach@{l} [%]" for l in labels] \
-        + TABLE_COLUMNS[7:]
+    columns = [(m.column, label, m.keys(label)) for m in table_metrics()
+               for label in (labels if m.per_tolerance else [None])]
+    header = TABLE_COLUMNS[:3] + [column.header(label) for column, label, _ in columns]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for planner, split, m in rows:
-        cells = [planner, split, str(m.get("problems", 0)),
-                 _pm(m.get("solution_time_mean"), m.get("solution_time_std")),
-                 _pm(m.get("path_length_mean"), m.get("path_length_std"), digits=2),
-                 *[_pct(m.get(f"success_rate@{l}")) for l in labels], *[_pct(m.get(f"reach_rate@{l}")) for l in labels],
-                 _pct(m.get("collision_rate")), _pct(m.get("self_collision_rate")), _pct(m.get("joint_limit_rate")),
-                 _pm(m.get("inference_time_mean"), m.get("inference_time_std"), scale=1e3, digits=2)]
+        cells = [planner, split, str(m.get("problems", 0)), *(c.cell([m.get(k) for k in keys]) for c, _, keys in columns)]
         lines.append("| " + " | ".join(cells) + " |")
     note = (f"Reached: end-effector within {labels[0]} and {cfg.orientation_tolerance:g} deg at the end of the rollout "
             f"(which stops at {labels[0]}); success: reached with no collision, self-collision or joint-limit violation. "

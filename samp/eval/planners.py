@@ -1,23 +1,16 @@
-"""What the evaluation can roll out or replay: the step-policy protocol, trajectory planners, and the
-two planners that exist without training (a straight-line baseline and the expert).
-
-Two kinds of planner are evaluated by the same checks and metrics:
-
-* A **step policy** (`StepPolicy`) maps the current configurations to the next ones, one step at a time,
-  for a whole batch of problems. The learned SAMP policy implements it; the rollout engine
-  (`samp.eval.engine`) calls `step` until each problem reaches its goal, stalls or runs out of steps.
-* A **trajectory planner** (`TrajectoryPlanner`) returns a whole trajectory per problem (the expert).
+"""The two planners that exist without training: a straight-line baseline and the expert (replayed or
+planned afresh). The protocols they implement (`StepPolicy`, `TrajectoryPlanner`, `EnvBatch`) are
+defined in `samp.policy.interface` and re-exported here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
-
 import numpy as np
 import torch
 
-__all__ = ["EXPERT_VARIANTS", "EnvBatch", "ExpertPlanner", "PlannedTrajectory", "StepPolicy", "StraightLinePolicy",
+from samp.policy.interface import EnvBatch, PlannedTrajectory, StepPolicy, TrajectoryPlanner, clamp_to_limits
+
+__all__ = ["EXPERT_VARIANTS", "EnvBatch", "ExpertTrajectoryPlanner", "PlannedTrajectory", "StepPolicy", "StraightLinePolicy",
            "TrajectoryPlanner", "clamp_to_limits"]
 
 # Expert rows of the paper's Table I besides the expert itself, as overrides of the dataset's expert config,
@@ -28,89 +21,6 @@ EXPERT_VARIANTS = {
     "expert_raw": {"simplify": False, "smooth": False},
     "ompl_sampling": {"planner": "RRTConnect", "simplify": False, "smooth": False, "direct": False},
 }
-
-
-@dataclass
-class EnvBatch:
-    """The environments of a batch of problems, shared between problems of the same scene.
-
-    Attributes:
-        grids: (S, n_e, n_e, n_e) float anchor grids of the S scenes in the batch, indexed (x, y, z)
-            (DESIGN section 4), on the policy's device; None when the policy asks for none (`n_e` None).
-        bounds: (S, 2, 3) workspace bounds of each scene, rows (min, max), metres.
-        scene_index: (B,) long, which of the S scenes each problem is in.
-
-    Within one rollout `grids` is the same tensor object at every step (only `scene_index` shrinks as
-    problems finish), so a policy may encode the environments once in `reset` and index the result.
-    """
-
-    grids: torch.Tensor | None
-    bounds: torch.Tensor
-    scene_index: torch.Tensor
-
-    def subset(self, rows: torch.Tensor) -> "EnvBatch":
-        """The environments of problems `rows` (indices into this batch); grids are shared, not copied."""
-        return EnvBatch(self.grids, self.bounds, self.scene_index[rows])
-
-    def problem_grids(self) -> torch.Tensor:
-        """(B, n_e, n_e, n_e) one grid per problem (a copy: B x n_e^3 floats), for simple policies."""
-        if self.grids is None:
-            raise ValueError("this batch carries no grids: the policy's n_e is None")
-        return self.grids[self.scene_index]
-
-    def problem_bounds(self) -> torch.Tensor:
-        """(B, 2, 3) bounds per problem."""
-        return self.bounds[self.scene_index]
-
-
-@runtime_checkable
-class StepPolicy(Protocol):
-    """A closed-loop motion policy, batched over problems.
-
-    Attributes:
-        robot: the samp `Robot` it controls; its device and dtype are the policy's (the engine hands
-            `step` tensors of that device and dtype).
-        n_e: anchors per axis of the environment grid the policy reads, or None if it reads none.
-        name: a short label for tables and records.
-
-    `step(q, q_goal, env)`: q (B, n) current and q_goal (B, n) goal configurations in radians, `env` an
-    `EnvBatch` -> q_next (B, n) radians. The policy keeps its output within the joint limits (DESIGN
-    section 4: q_{t+1} = clamp(q_t + dq)); the engine does not clamp and records any violation. It is
-    called under `torch.no_grad()`, and its wall time is the rollout's solution time.
-
-    Optional `reset(env)`: called once per rollout batch before the first step, inside the timed
-    region, e.g. to encode the environment grids once.
-    """
-
-    robot: object
-    n_e: int | None
-    name: str
-
-    def step(self, q: torch.Tensor, q_goal: torch.Tensor, env: EnvBatch) -> torch.Tensor: ...
-
-
-@dataclass
-class PlannedTrajectory:
-    """A trajectory planner's answer: (W, n) radians or None on failure, its wall time, and why it failed."""
-
-    trajectory: np.ndarray | None
-    solution_time: float | None
-    reason: str = ""
-
-
-@runtime_checkable
-class TrajectoryPlanner(Protocol):
-    """A planner that answers a whole problem at once: `plan(problem) -> PlannedTrajectory`."""
-
-    name: str
-
-    def plan(self, problem) -> PlannedTrajectory: ...
-
-
-def clamp_to_limits(robot, q: torch.Tensor) -> torch.Tensor:
-    """q (B, n) -> q clamped into the robot's joint limits (same device and dtype)."""
-    limits = robot.joint_limits.to(device=q.device, dtype=q.dtype)
-    return torch.maximum(torch.minimum(q, limits[:, 1]), limits[:, 0])
 
 
 class StraightLinePolicy:
@@ -142,8 +52,8 @@ class StraightLinePolicy:
         return clamp_to_limits(self.robot, q + scale * delta)
 
 
-class ExpertPlanner:
-    """The expert as a trajectory planner.
+class ExpertTrajectoryPlanner:
+    """The expert (`samp.expert.ExpertPlanner`) as a `TrajectoryPlanner` for the evaluation.
 
     mode "replay" (default): the problem's stored expert trajectory and planning time (dataset problems),
     so the expert is judged by the same checks and metrics as a policy without planning again.
@@ -166,15 +76,15 @@ class ExpertPlanner:
                                  "problems from a dataset (samp.eval.problems_from_dataset) or use mode='plan'")
             return PlannedTrajectory(problem.expert_trajectory, problem.expert_time)
         if self.robot is None:
-            raise ValueError("the expert in mode 'plan' needs a robot: ExpertPlanner(mode='plan', robot=...)")
-        from samp.eval.checks import exact_robot
-        from samp.expert import ExpertPlanner as OMPLPlanner
+            raise ValueError("the expert in mode 'plan' needs a robot: ExpertTrajectoryPlanner(mode='plan', robot=...)")
+        from samp.expert import ExpertPlanner
+        from samp.robot.precision import exact_robot
 
         key = problem.scene.content_hash()
         if key not in self._planners:
             # float64: OMPL's bounds are the robot's limits, and a float32 limit rounds inward, which
             # refuses a start stored exactly at a limit (as the expert's own IK goals can be).
-            self._planners[key] = OMPLPlanner(exact_robot(self.robot), problem.scene, self.config)
+            self._planners[key] = ExpertPlanner(exact_robot(self.robot), problem.scene, self.config)
         result = self._planners[key].plan(problem.q_start, problem.q_goal, seed=self.seed)
         return PlannedTrajectory(result.trajectory if result.success else None, result.stats.get("planning_time"),
                                  result.reason)

@@ -12,7 +12,8 @@ Names are imported on first use.
 from importlib import import_module
 
 _EXPORTS = {
-    "Scan": "cloud", "load_point_cloud": "cloud", "save_point_cloud": "cloud", "scan_from_file": "cloud",
+    "DepthView": "cloud", "Scan": "cloud", "load_point_cloud": "cloud", "save_point_cloud": "cloud",
+    "scan_from_file": "cloud",
     "FREE": "reconstruct", "OCCUPIED": "reconstruct", "UNKNOWN": "reconstruct", "UNKNOWN_POLICIES": "reconstruct",
     "Lattice": "reconstruct", "Reconstruction": "reconstruct", "observe": "reconstruct",
     "reconstruct_grid": "reconstruct", "reconstruction_error": "reconstruct", "signed_distance": "reconstruct",

@@ -1,9 +1,8 @@
-"""Point clouds: one sensor's observation (`Scan`) and reading/writing clouds as PLY or NPY files.
+"""Point clouds: reading and writing clouds as PLY or NPY files, and a `Scan` from a user's cloud file.
 
-A `Scan` is what reconstruction needs from one depth image: the sensor position and, in the robot base
-frame, the surface points it measured (`hits`) and the ends of rays that met no obstacle (`free_ends`:
-pixels with no return, up to the far plane, and pixels on the robot itself, up to the robot). The space
-along every ray up to its end is seen free; without an `origin` nothing is known to be free.
+`Scan` and `DepthView`, what a depth camera produces, live in the sim layer (`samp.sim.scan`, beside the
+camera that makes them) and are re-exported here: a `Scan` is the sensor position and, in the robot base
+frame, the surface points it measured and the ends of rays seen free.
 
 Files hold points only. PLY: ascii, binary_little_endian or binary_big_endian, a `vertex` element
 with float or double `x`, `y`, `z` properties (other properties and elements are skipped; list
@@ -13,10 +12,11 @@ organised (H, W, 3) cloud; non-finite points (a sensor's invalid pixels) are dro
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from samp.sim.scan import DepthView, Scan, as_points
 
 __all__ = ["DepthView", "Scan", "load_point_cloud", "save_point_cloud", "scan_from_file"]
 
@@ -24,60 +24,6 @@ PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": 
              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 PLY_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
-
-
-def _points(array, what: str) -> np.ndarray:
-    """Any (N, 3)-like array -> (N, 3) float64; ValueError naming `what` otherwise."""
-    arr = np.asarray(array, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{what} must be an (N, 3) array of points in metres, got shape {arr.shape}")
-    return arr
-
-
-@dataclass
-class DepthView:
-    """The depth image a scan came from, for projective free-space carving (no gaps between rays).
-
-    Args:
-        depth: (H, W) metres along the optical axis per pixel: the measured surface, the robot's surface
-            (free up to it), or the far plane (no return: free up to it); NaN: no information.
-        intrinsics: (fx, fy, cx, cy) pixels, OpenCV convention; pose: (4, 4) camera -> base, optical axes.
-    """
-
-    depth: np.ndarray
-    intrinsics: tuple[float, float, float, float]
-    pose: np.ndarray
-
-
-@dataclass
-class Scan:
-    """One sensor's observation in the robot base frame (metres).
-
-    Args:
-        hits: (N, 3) measured obstacle surface points.
-        origin: (3,) sensor position, or None when unknown (then no free space is observed).
-        free_ends: (K, 3) ends of rays seen free all the way (no return, or the robot's own surface).
-        name: the sensor's name, for records and drawings.
-        view: the depth image, when the scan is one (then free space is carved from it, not from rays).
-    """
-
-    hits: np.ndarray
-    origin: np.ndarray | None = None
-    free_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    name: str = "cloud"
-    view: DepthView | None = field(default=None, repr=False)
-
-    def __post_init__(self):
-        self.hits = _points(self.hits, f"scan {self.name!r}: hits")
-        self.free_ends = _points(self.free_ends, f"scan {self.name!r}: free_ends")
-        if self.origin is not None:
-            self.origin = np.asarray(self.origin, dtype=np.float64).reshape(-1)
-            if self.origin.shape != (3,) or not np.all(np.isfinite(self.origin)):
-                raise ValueError(f"scan {self.name!r}: origin must be a finite (3,) sensor position, got {self.origin}")
-        elif len(self.free_ends):
-            raise ValueError(f"scan {self.name!r}: free_ends need the sensor origin they start from")
-        if not (np.all(np.isfinite(self.hits)) and np.all(np.isfinite(self.free_ends))):
-            raise ValueError(f"scan {self.name!r}: points must be finite; drop NaN or inf points first")
 
 
 # ----------------------------------------------------------------------------------------------- reading
@@ -171,7 +117,7 @@ def load_point_cloud(path: str | Path) -> np.ndarray:
 
 def save_point_cloud(path: str | Path, points, ascii: bool = False) -> Path:
     """Write (N, 3) points as `.ply` (binary little-endian float32, or ascii) or `.npy` (float64)."""
-    path, points = Path(path), _points(points, "points")
+    path, points = Path(path), as_points(points, "points")
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() == ".npy":
         np.save(path, points)

@@ -41,8 +41,8 @@ import numpy as np
 import torch
 from scipy.ndimage import distance_transform_edt, minimum_filter
 
-from samp.perception.cloud import DepthView, Scan
 from samp.scene.model import check_bounds
+from samp.sim.scan import DepthView, Scan
 
 __all__ = ["FREE", "OCCUPIED", "UNKNOWN", "UNKNOWN_POLICIES", "Lattice", "Reconstruction", "observe",
            "reconstruct_grid", "reconstruction_error", "signed_distance"]

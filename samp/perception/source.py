@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from samp.perception.cloud import Scan
 from samp.perception.reconstruct import NEAR, Reconstruction, reconstruct_grid, reconstruction_error
+from samp.sim.scan import Scan
 
 __all__ = ["CAPTURE_POSES", "ReconstructedGrids", "SceneReconstruction"]
 

@@ -79,8 +79,8 @@ def write_reconstruction_recording(path: str | Path, scenes, cameras, slices: in
     `path` (.rrd): `slices` z slices per scene, evenly spaced over the grid."""
     import rerun as rr
 
+    from samp.scene.viz import sdf_colors
     from samp.viz.rollout import log_scene_frame, log_sdf_plane
-    from samp.viz.scene import sdf_colors
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

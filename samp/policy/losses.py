@@ -10,17 +10,23 @@ d_i is the robot SDF at the same point, computed from the predicted joint angles
 point gets its own weight (the authors' code multiplied mean weight by mean hinge instead, and fed the
 robot SDF normalised angles; both are fixed here). The weights are treated as constants: they say how
 much a point matters, and differentiating the robot SDF network through them would only add cost.
+
+`LOSS_TERMS` is the one list of terms: a term names what it is logged as, the `LossConfig` field that
+weights it, and how it is computed from a `StepPrediction`. Adding a term is one entry there and its
+weight field in `LossConfig` (with a default of 0.0 it changes nothing until a config turns it on).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import torch
 
 from samp.policy.network import sample_by_scene
 
-__all__ = ["LossConfig", "collision_loss", "config_loss", "match_loss"]
+__all__ = ["LOSS_TERMS", "LossConfig", "LossTerm", "StepPrediction", "collision_loss", "config_loss", "loss_terms",
+           "match_loss"]
 
 
 @dataclass
@@ -51,3 +57,59 @@ def collision_loss(pred_points: torch.Tensor, grids: torch.Tensor, scene_index: 
 def config_loss(q_pred: torch.Tensor, q_true: torch.Tensor) -> torch.Tensor:
     """(B, n) radians -> scalar: squared Euclidean distance, averaged over the batch."""
     return (q_pred - q_true).square().sum(dim=-1).mean()
+
+
+@dataclass
+class StepPrediction:
+    """What the loss terms of one training step read.
+
+    Attributes:
+        q_hat, q_next: (B, n) predicted and demonstrated next configurations, radians.
+        pred_points, true_points: (B, M, 3) the robot points posed at q_hat (with gradients) and at q_next.
+        grids: (S, n_e, n_e, n_e) anchor grids; scene: (B,) index into them; bounds: the grids' bounds.
+        robot_sdf: () -> (B, M) the robot SDF at `pred_points`, metres, computed on first use.
+    """
+
+    q_hat: torch.Tensor
+    q_next: torch.Tensor
+    pred_points: torch.Tensor
+    true_points: torch.Tensor
+    grids: torch.Tensor
+    scene: torch.Tensor
+    bounds: object
+    robot_sdf: Callable[[], torch.Tensor]
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def robot_sdf_at_prediction(self) -> torch.Tensor:
+        if "robot_sdf" not in self._cache:
+            self._cache["robot_sdf"] = self.robot_sdf()
+        return self._cache["robot_sdf"]
+
+
+@dataclass(frozen=True)
+class LossTerm:
+    """One term of L: logged as `train/<name>`, weighted by `LossConfig.<weight>`."""
+
+    name: str
+    weight: str
+    compute: Callable[[StepPrediction, LossConfig], torch.Tensor]
+
+
+LOSS_TERMS = (
+    LossTerm("match", "match", lambda s, c: match_loss(s.pred_points, s.true_points)),
+    LossTerm("coll", "collision", lambda s, c: collision_loss(s.pred_points, s.grids, s.scene, s.bounds,
+                                                              s.robot_sdf_at_prediction(), c)),
+    LossTerm("config", "config", lambda s, c: config_loss(s.q_hat, s.q_next)),
+)
+
+
+def loss_terms(step: StepPrediction, cfg: LossConfig, off: tuple[str, ...] = ()) -> dict[str, torch.Tensor]:
+    """Every term of `LOSS_TERMS` (zero for the names in `off`, an ablation) and their weighted sum as
+    "loss"."""
+    unknown = set(off) - {t.name for t in LOSS_TERMS}
+    if unknown:
+        raise ValueError(f"unknown loss term(s) {sorted(unknown)}; the terms are {[t.name for t in LOSS_TERMS]}")
+    zero = torch.zeros((), device=step.q_hat.device)
+    out = {t.name: zero if t.name in off else t.compute(step, cfg) for t in LOSS_TERMS}
+    out["loss"] = sum(getattr(cfg, t.weight) * out[t.name] for t in LOSS_TERMS)
+    return out

@@ -14,7 +14,8 @@ import torch
 
 from samp.cli import compose, output_path, run_command
 
-USAGE = "usage: python -m samp.robot show robot=NAME [out=FILE.rrd] [configs=N] [seed=S]"
+USAGE = """usage: python -m samp.robot show robot=NAME [out=FILE.rrd] [configs=N] [seed=S]
+  show    print a robot's joints, limits, links and robot points; write a Rerun recording of it"""
 
 
 def summary(robot) -> str:
@@ -43,7 +44,7 @@ def summary(robot) -> str:
 
 def sample_free_configurations(robot, count: int, seed: int) -> torch.Tensor:
     """(count, n): home, then random configurations within the limits that are free of self-collision."""
-    from samp.sim import LinkBodies
+    from samp.robot.bodies import LinkBodies
 
     rng = np.random.default_rng(seed)
     lo, hi = robot.joint_limits.double().cpu().numpy().T
@@ -63,7 +64,7 @@ def show(overrides: list[str]) -> Path:
     import rerun as rr
 
     from samp.robot import load_robot
-    from samp.viz import log_robot_meshes, log_robot_pose
+    from samp.robot.viz import log_robot_meshes, log_robot_pose
 
     cfg = compose("robot_show", overrides)
     robot = load_robot(cfg.robot, dtype=torch.float64)
@@ -79,8 +80,14 @@ def show(overrides: list[str]) -> Path:
     return out
 
 
+def _help() -> str:
+    from samp.cli import command_help
+
+    return f"{USAGE}\n\nshow's options (key=default; conf/robot_show.yaml):\n{command_help('robot_show')}"
+
+
 def main(argv: list[str] | None = None) -> int:
-    return run_command(argv, USAGE, {"show": show})
+    return run_command(argv, _help, {"show": show})
 
 
 if __name__ == "__main__":

@@ -8,11 +8,11 @@
 from samp.robot_sdf.artifact import load_robot_sdf, save_artifact
 from samp.robot_sdf.baselines import NNSDF, BernsteinSDF, fit_bernstein
 from samp.robot_sdf.encoding import HashGridEncoding
-from samp.robot_sdf.evaluate import EvalConfig, evaluate_methods
+from samp.robot_sdf.evaluate import SDFEvalConfig, evaluate_methods
 from samp.robot_sdf.model import UnifiedHashSDF
-from samp.robot_sdf.query import RobotSDF
 from samp.robot_sdf.samples import SampleConfig, SampleSet, ensure_samples, load_samples
+from samp.robot_sdf.whole_robot import RobotSDF
 
-__all__ = ["BernsteinSDF", "EvalConfig", "HashGridEncoding", "NNSDF", "RobotSDF", "SampleConfig", "SampleSet",
+__all__ = ["BernsteinSDF", "HashGridEncoding", "NNSDF", "RobotSDF", "SDFEvalConfig", "SampleConfig", "SampleSet",
            "UnifiedHashSDF", "ensure_samples", "evaluate_methods", "fit_bernstein", "load_robot_sdf", "load_samples",
            "save_artifact"]

@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from samp.robot_sdf.query import RobotSDF
+from samp.robot_sdf.whole_robot import RobotSDF
 
 __all__ = ["ARTIFACT_FILE", "ARTIFACT_FORMAT", "CHECKPOINT_KEY", "artifact_id", "build_net", "describe",
            "load_robot_sdf", "net_spec", "save_artifact"]

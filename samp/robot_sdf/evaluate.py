@@ -1,6 +1,6 @@
 """The robot SDF evaluation of the paper's Table III: accuracy against trimesh, training and inference time.
 
-Two held-out point sets, drawn with a fixed seed (`EvalConfig.seed`) so that figures compare across
+Two held-out point sets, drawn with a fixed seed (`SDFEvalConfig.seed`) so that figures compare across
 versions and methods, with ground truth from trimesh (`samples.link_signed_distance`):
 
 - per link: half near the surface (area-weighted surface samples moved along random unit directions
@@ -28,8 +28,8 @@ import torch
 
 from samp.robot_sdf.samples import link_signed_distance
 
-__all__ = ["EVAL_FORMAT", "PAPER_TABLE_III", "EvalConfig", "error_metrics", "evaluate_methods", "heldout_link_set",
-           "heldout_robot_set", "render_table", "robot_signed_distance", "time_query"]
+__all__ = ["EVAL_FORMAT", "PAPER_TABLE_III", "SDFEvalConfig", "error_metrics", "evaluate_methods",
+           "heldout_link_set", "heldout_robot_set", "render_table", "robot_signed_distance", "time_query"]
 
 EVAL_FORMAT = "robot-sdf-eval-v1"
 TABLE_MD, TABLE_JSON, RECORDING = "robot_sdf_table.md", "robot_sdf_table.json", "robot_sdf.rrd"
@@ -44,8 +44,9 @@ PAPER_TABLE_III = {
 
 
 @dataclass
-class EvalConfig:
-    """Sizes and seed of the held-out sets, and what else to measure."""
+class SDFEvalConfig:
+    """The robot SDF accuracy evaluation (Table III): sizes and seed of the held-out sets, and what else
+    to measure. (Rollout evaluation has its own `samp.eval.config.EvalConfig`.)"""
 
     link_points: int = 20_000  # per link, half near the surface, half uniform in its box
     configs: int = 20  # random configurations of the whole-robot set
@@ -72,7 +73,7 @@ def _near_points(rng, mesh, count: int, noise: list[float]) -> np.ndarray:
     return surface + direction * rng.normal(size=(count, 1)) * sigma[:, None]
 
 
-def _cache_key(robot, centres, scales, cfg: EvalConfig, kind: str) -> str:
+def _cache_key(robot, centres, scales, cfg: SDFEvalConfig, kind: str) -> str:
     key = {"format": EVAL_FORMAT, "kind": kind, "asset": robot.asset_hash, "links": list(robot.link_names),
            "centres": np.round(np.asarray(centres, dtype=np.float64), 9).tolist(),
            "scales": np.round(np.asarray(scales, dtype=np.float64), 9).tolist(),
@@ -91,7 +92,7 @@ def _cached(path: Path, build) -> dict[str, np.ndarray]:
     return arrays
 
 
-def heldout_link_set(robot, centres, scales, cfg: EvalConfig) -> dict[str, np.ndarray]:
+def heldout_link_set(robot, centres, scales, cfg: SDFEvalConfig) -> dict[str, np.ndarray]:
     """points (P, 3) in their link frames [m], link (P,), sdf (P,) exact [m]."""
     from samp.paths import cache_dir
 
@@ -136,7 +137,7 @@ def robot_signed_distance(robot, points: np.ndarray, pose: np.ndarray) -> np.nda
     return best
 
 
-def heldout_robot_set(robot, centres, scales, cfg: EvalConfig) -> dict[str, np.ndarray]:
+def heldout_robot_set(robot, centres, scales, cfg: SDFEvalConfig) -> dict[str, np.ndarray]:
     """q (C, n) radians, points (C, K, 3) base frame, sdf (C, K) exact [m]."""
     from samp.paths import cache_dir
 
@@ -218,7 +219,7 @@ def time_query(model, batch: int, seed: int = 0, min_time: float = 0.3) -> float
     return 1e3 * statistics.median(times)
 
 
-def evaluate_methods(robot, methods: dict, cfg: EvalConfig, out_dir: Path | str | None = None) -> dict:
+def evaluate_methods(robot, methods: dict, cfg: SDFEvalConfig, out_dir: Path | str | None = None) -> dict:
     """Evaluate `methods` ({label: {"model": RobotSDF, "train_time_s": float}}) on the same held-out sets.
 
     All models must share the robot and the link boxes (they were trained on one sample set). Writes

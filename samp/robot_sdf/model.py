@@ -1,7 +1,7 @@
 """The unified robot SDF network (DESIGN section 4): one hash grid and one MLP for all links.
 
 Every link SDF network in this package has the same interface, so the whole-robot query
-(`samp.robot_sdf.query.RobotSDF`) and the evaluation treat the method and its baselines alike:
+(`samp.robot_sdf.whole_robot.RobotSDF`) and the evaluation treat the method and its baselines alike:
 
     net(u (P, 3) points in their link's normalised box [-1, 1]^3, link (P,) int64) -> (P,) normalised distance
 

@@ -1,5 +1,6 @@
 """Training a robot SDF with Lightning: `RobotSDFDataModule` (samples -> random per-link batches) and
-`RobotSDFSystem` (loss, metrics, optimiser, learning-rate decay, export and Table III evaluation).
+`RobotSDFSystem` (loss, metrics, optimiser, learning-rate decay, checkpoint description). The training
+recipe exports the trained network and evaluates it (`samp.train.after_fit.export_robot_sdf`).
 
 A step draws `near_per_step` near-surface and `uniform_per_step` uniform samples from every link (the
 authors' 2048 + 1024) and regresses the network's normalised distance on the exact one (MSE, as in the
@@ -130,15 +131,13 @@ class RobotSDFSystem(pl.LightningModule):
         time_limit_s: stop training after this many seconds (None: only trainer.max_steps counts).
         loss: "mse" (the paper's) or "l1", on normalised distances.
         method: the label of the method in tables and recordings (default: the network's `label`).
-        evaluation: `EvalConfig` fields for the Table III evaluation after training (None: skip it).
     """
 
     def __init__(self, net: Callable[..., nn.Module], robot: str, optimizer: Callable, lr_final_factor: float = 0.1,
-                 time_limit_s: float | None = None, loss: str = "mse", method: str | None = None,
-                 evaluation: dict | None = None):
+                 time_limit_s: float | None = None, loss: str = "mse", method: str | None = None):
         super().__init__()
         from samp.robot import load_robot_config
-        from samp.robot_sdf.artifact import _plain, net_spec
+        from samp.robot_sdf.artifact import net_spec
 
         if loss not in LOSSES:
             raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
@@ -150,7 +149,7 @@ class RobotSDFSystem(pl.LightningModule):
         self.net = (net.func if hasattr(net, "func") else net)(**kwargs)
         self.spec = net_spec(self.net)
         self.optimizer_factory, self.lr_final_factor, self.time_limit_s = optimizer, lr_final_factor, time_limit_s
-        self.loss_name, self.evaluation = loss, _plain(evaluation)
+        self.loss_name = loss
         self.method = method or getattr(self.net, "label", type(self.net).__name__)
         self.register_buffer("centres", torch.zeros(len(self.link_names), 3))
         self.register_buffer("scales", torch.ones(len(self.link_names)))
@@ -227,7 +226,7 @@ class RobotSDFSystem(pl.LightningModule):
     def robot_sdf(self, robot=None):
         """The trained network as a `RobotSDF` for `robot` (loaded by name when not given)."""
         from samp.robot import load_robot
-        from samp.robot_sdf.query import RobotSDF
+        from samp.robot_sdf.whole_robot import RobotSDF
 
         robot = robot or load_robot(self.robot_name).to(self.centres.device)
         if self.robot_asset_hash and robot.asset_hash != self.robot_asset_hash:
@@ -243,21 +242,3 @@ class RobotSDFSystem(pl.LightningModule):
         robot = SimpleNamespace(name=self.robot_name, asset_hash=self.robot_asset_hash, link_names=self.link_names)
         checkpoint[CHECKPOINT_KEY] = describe(robot, self.spec, self.method, self.centres, self.scales, self.dataset_id,
                                               {"train_time_s": self.train_time_s})
-
-    def evaluate_run(self, run_dir: Path) -> dict:
-        """After training: write `robot_sdf.pt` and (unless `evaluation` is None) the Table III files."""
-        from samp.robot_sdf.artifact import ARTIFACT_FILE, artifact_id, save_artifact
-        from samp.robot_sdf.evaluate import EvalConfig, evaluate_methods
-
-        model = self.robot_sdf().eval()
-        path = save_artifact(Path(run_dir) / ARTIFACT_FILE, model, self.spec, self.dataset_id,
-                             {"train_time_s": self.train_time_s})
-        metrics = {"robot_sdf_artifact_id": artifact_id(path), "train_time_s": self.train_time_s}
-        if self.evaluation is not None:
-            report = evaluate_methods(model.robot, {self.method: {"model": model, "train_time_s": self.train_time_s}},
-                                      EvalConfig(**self.evaluation), run_dir)
-            res = report["methods"][self.method]
-            for key in ("whole_robot", "per_link"):
-                metrics.update({f"eval/{key}/{k}": v for k, v in res[key].items() if not k.startswith("count")})
-            metrics.update({f"eval/infer_ms_B{b}": v for b, v in res["infer_ms"].items()})
-        return metrics

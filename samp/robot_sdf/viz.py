@@ -65,7 +65,7 @@ def log_offset_layers(rec, entity: str, distances: np.ndarray, plane: dict, spac
     import contourpy
     import rerun as rr
 
-    from samp.viz.scene import QUAD_TRIANGLES
+    from samp.scene.viz import QUAD_TRIANGLES
 
     texcoords = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float32)
     rec.log(f"{entity}/bands", rr.Mesh3D(vertex_positions=plane["corners"].astype(np.float32),

@@ -1,24 +1,29 @@
-"""`python -m samp.runs COMMAND ...`: list, show and compare runs; tables and plots over sweeps; the paper's tables.
+"""`python -m samp.runs COMMAND [key=value ...]`: list, show and compare runs; tables and plots over sweeps;
+the paper's tables.
 
-  ls [KEY=VALUE ...] [--root DIR] [--keys K ...]        runs under runs/ (or --root), filtered by any key
-  show RUN                                             one run's record: status, lineage, metrics, files
-  compare RUN RUN ... [--metrics M ...]                side by side: lineage, differing config, metrics
-  table DIR --by KEY [--metrics M ...] [--out PREFIX]  one row per value of KEY (mean ± std), .md and .csv
-  plot DIR --by KEY [--metrics M ...] [--kind curves|bars] [--out FILE.png]
-                                                       learning curves from metrics.csv, or bars of final metrics
-  paper-tables [--root DIR] [--out DIR]                Table I and Table II from the runs that exist
+usage: python -m samp.runs COMMAND [key=value ...]
+  ls [KEY=VALUE ...] [root=DIR] [keys=K,K]         runs under runs/ (or root), filtered by any key
+  show RUN                                         one run's record: status, lineage, metrics, files
+  compare RUN RUN ... [metrics=M,M]                side by side: lineage, differing config, metrics
+  table DIR by=KEY [metrics=M,M] [out=PREFIX]      one row per value of KEY (mean ± std), .md and .csv
+  plot DIR by=KEY [metrics=M,M] [kind=curves|bars] [x=epoch|step] [out=FILE.png]
+                                                   learning curves from metrics.csv, or bars of final metrics
+  paper-tables [root=DIR] [out=DIR]                Table I and Table II from the runs that exist
 
-Keys are config keys (datamodule.n_e, name), record keys (status, seed, dataset_id) and metrics
-(val/loss, eval/samp/heldout/success_rate). Tables and plots go beside the runs unless --out says where.
+RUN and DIR are run folders (also run=RUN, dir=DIR). Keys are config keys (datamodule.n_e, name), record
+keys (status, seed, dataset_id) and metrics (val/loss, eval/samp/heldout/success_rate); in `ls`, every
+KEY=VALUE other than root= and keys= is a filter. Tables and plots go beside the runs unless out= says
+where. The older spellings (--by KEY, --metrics M M, --out, --root, --keys, --kind, --x) still work.
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 __all__ = ["main"]
+
+USAGE = __doc__.split("\n\n", 1)[1].strip()
 
 
 def _root(value: str | None) -> Path:
@@ -32,7 +37,7 @@ def _root(value: str | None) -> Path:
     return path if path.is_absolute() or path.exists() else REPO_ROOT / path
 
 
-def _runs(folder: str):
+def _runs(folder: str | None):
     from samp.runs.registry import find_runs
 
     runs = find_runs(_root(folder))
@@ -41,64 +46,101 @@ def _runs(folder: str):
     return runs
 
 
-def _ls(a) -> None:
+def _args(command: str, args: list[str], keys: tuple[str, ...], subject: str | None = None, lists=("metrics",),
+          filters: bool = False) -> tuple[list[str], dict, list[str]]:
+    """(folders, options, filters) of one command; `subject` names its folder argument(s) (also `subject=`)."""
+    from samp.cli import parse_options
+
+    names = keys + ((subject,) if subject else ())
+    bare, opts, extra = parse_options(args, names, lists=lists, filters=filters, positional=subject, command=command)
+    if subject in opts:
+        bare.append(opts.pop(subject))
+    return bare, opts, extra
+
+
+def _one(command: str, what: str, folders: list[str]) -> str:
+    if len(folders) != 1:
+        raise ValueError(f"{command} takes one {what} folder, got {len(folders)}: {folders} "
+                         f"(see `python -m samp.runs --help`)")
+    return folders[0]
+
+
+def _by(command: str, opts: dict) -> str:
+    if not opts.get("by"):
+        raise ValueError(f"{command} needs by=KEY: the config, record or metric key whose values make the rows "
+                         "(e.g. by=datamodule.n_e, by=name, by=seed)")
+    return opts["by"]
+
+
+def _ls(args: list[str]) -> None:
     from samp.runs.registry import matches
     from samp.runs.tables import list_table, markdown
 
-    runs = [r for r in _runs(a.root) if matches(r, a.filters)]
-    header, rows = list_table(runs, a.keys)
+    _, opts, filters = _args("ls", args, ("root", "keys"), lists=("keys",), filters=True)
+    runs = [r for r in _runs(opts.get("root")) if matches(r, filters)]
+    header, rows = list_table(runs, opts.get("keys", []))
     print(markdown(header, rows) + f"\n{len(rows)} run(s)")
 
 
-def _show(a) -> None:
+def _show(args: list[str]) -> None:
     from samp.runs.registry import load_run
     from samp.runs.tables import show_text
 
-    print(show_text(load_run(_root(a.run))), end="")
+    folders, _, _ = _args("show", args, (), subject="run")
+    print(show_text(load_run(_root(_one("show", "run", folders)))), end="")
 
 
-def _compare(a) -> None:
+def _compare(args: list[str]) -> None:
     from samp.runs.registry import load_run
     from samp.runs.tables import compare_table, markdown
 
-    if len(a.runs) < 2:
+    folders, opts, _ = _args("compare", args, ("metrics",), subject="run")
+    if len(folders) < 2:
         raise ValueError("compare needs two or more run folders")
-    print(markdown(*compare_table([load_run(_root(r)) for r in a.runs], a.metrics)), end="")
+    print(markdown(*compare_table([load_run(_root(r)) for r in folders], opts.get("metrics"))), end="")
 
 
-def _table(a) -> None:
+def _table(args: list[str]) -> None:
     from samp.runs.tables import default_metrics, group_table, markdown, write_table
 
-    runs = _runs(a.dir)
-    header, rows = group_table(runs, a.by, a.metrics or default_metrics(runs))
+    folders, opts, _ = _args("table", args, ("by", "metrics", "out"), subject="dir")
+    folder, by = _one("table", "sweep (or runs)", folders), _by("table", opts)
+    runs = _runs(folder)
+    header, rows = group_table(runs, by, opts.get("metrics") or default_metrics(runs))
     print(markdown(header, rows), end="")
-    prefix = Path(a.out) if a.out else _root(a.dir) / f"table_by_{a.by.replace('/', '_')}"
+    prefix = Path(opts["out"]) if opts.get("out") else _root(folder) / f"table_by_{by.replace('/', '_')}"
     print("wrote " + ", ".join(str(p) for p in write_table(prefix, header, rows)))
 
 
-def _plot(a) -> None:
+def _plot(args: list[str]) -> None:
     from samp.runs.plots import CURVE_METRICS, plot_bars, plot_curves
     from samp.runs.tables import default_metrics
 
-    runs = _runs(a.dir)
-    tag = a.by.replace("/", "_")
-    if a.kind == "curves":
-        out = Path(a.out) if a.out else _root(a.dir) / f"curves_by_{tag}.png"
-        path = plot_curves(runs, a.by, a.metrics or list(CURVE_METRICS), out, x=a.x)
+    folders, opts, _ = _args("plot", args, ("by", "metrics", "out", "kind", "x"), subject="dir")
+    folder, by = _one("plot", "sweep (or runs)", folders), _by("plot", opts)
+    kind, x = opts.get("kind", "curves"), opts.get("x", "epoch")
+    if kind not in ("curves", "bars") or x not in ("epoch", "step"):
+        raise ValueError(f"plot takes kind=curves|bars and x=epoch|step, got kind={kind} x={x}")
+    runs = _runs(folder)
+    metrics, tag = opts.get("metrics"), by.replace("/", "_")
+    if kind == "curves":
+        out = Path(opts["out"]) if opts.get("out") else _root(folder) / f"curves_by_{tag}.png"
+        path = plot_curves(runs, by, metrics or list(CURVE_METRICS), out, x=x)
     else:
-        out = Path(a.out) if a.out else _root(a.dir) / f"bars_by_{tag}.png"
-        path = plot_bars(runs, a.by, a.metrics or default_metrics(runs, limit=4), out)
+        out = Path(opts["out"]) if opts.get("out") else _root(folder) / f"bars_by_{tag}.png"
+        path = plot_bars(runs, by, metrics or default_metrics(runs, limit=4), out)
     print(f"wrote {path}")
 
 
-def _paper_tables(a) -> None:
+def _paper_tables(args: list[str]) -> None:
     from samp.runs.paper import paper_tables
     from samp.runs.registry import find_runs
     from samp.runs.tables import markdown, write_table
 
-    root = _root(a.root)
+    _, opts, _ = _args("paper-tables", args, ("root", "out"))
+    root = _root(opts.get("root"))
     runs = find_runs(root) if root.is_dir() else []
-    out = Path(a.out) if a.out else root / "paper_tables"
+    out = Path(opts["out"]) if opts.get("out") else root / "paper_tables"
     titles = {"table_1": "Table I: motion planning (training / held-out scenes)",
               "table_2": "Table II: anchor size (n_e per axis)"}
     for name, (header, rows) in paper_tables(runs, root).items():
@@ -106,47 +148,14 @@ def _paper_tables(a) -> None:
         print("wrote " + ", ".join(str(p) for p in write_table(out / name, header, rows, titles[name])) + "\n")
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m samp.runs", description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
-    sub = p.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("ls", help="list runs")
-    s.add_argument("filters", nargs="*", help="KEY=VALUE")
-    s.add_argument("--root", default=None)
-    s.add_argument("--keys", nargs="*", default=[], help="extra columns")
-    s.set_defaults(fn=_ls)
-    s = sub.add_parser("show", help="one run")
-    s.add_argument("run")
-    s.set_defaults(fn=_show)
-    s = sub.add_parser("compare", help="runs side by side")
-    s.add_argument("runs", nargs="+")
-    s.add_argument("--metrics", nargs="*", default=None)
-    s.set_defaults(fn=_compare)
-    for name, fn in (("table", _table), ("plot", _plot)):
-        s = sub.add_parser(name, help=f"{name} over the runs in DIR grouped by a key")
-        s.add_argument("dir")
-        s.add_argument("--by", required=True)
-        s.add_argument("--metrics", nargs="*", default=None)
-        s.add_argument("--out", default=None)
-        if name == "plot":
-            s.add_argument("--kind", choices=("curves", "bars"), default="curves")
-            s.add_argument("--x", choices=("epoch", "step"), default="epoch")
-        s.set_defaults(fn=fn)
-    s = sub.add_parser("paper-tables", help="Table I and Table II")
-    s.add_argument("--root", default=None)
-    s.add_argument("--out", default=None)
-    s.set_defaults(fn=_paper_tables)
-    return p
+COMMANDS = {"ls": _ls, "show": _show, "compare": _compare, "table": _table, "plot": _plot,
+            "paper-tables": _paper_tables}
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
-    try:
-        args.fn(args)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return 0
+    from samp.cli import run_command
+
+    return run_command(argv, USAGE, COMMANDS)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@
 `.hydra/overrides.yaml`, `run.json`, `metrics.csv` (written by the CSV logger), `checkpoints/` and
 whatever the run's evaluation writes. `run.json` is rewritten atomically on every update, so a reader
 never sees half a record; its status is running, completed, failed (with the error) or interrupted.
-The file names are defined here once.
+The file names are defined once, in `samp.names`.
 """
 
 from __future__ import annotations
@@ -21,11 +21,8 @@ from pathlib import Path
 __all__ = ["CHECKPOINTS_DIR", "CONFIG_DIR", "LAST_CHECKPOINT", "METRICS_CSV", "RUN_JSON", "STATUSES", "RunFolder",
            "Terminated", "runs_root"]
 
-RUN_JSON = "run.json"
-METRICS_CSV = "metrics.csv"
-CHECKPOINTS_DIR = "checkpoints"
-LAST_CHECKPOINT = "last.ckpt"
-CONFIG_DIR = ".hydra"
+from samp.names import CHECKPOINTS_DIR, CONFIG_DIR, LAST_CHECKPOINT, METRICS_CSV, RUN_JSON
+
 STATUSES = ("running", "completed", "failed", "interrupted")
 
 

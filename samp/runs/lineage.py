@@ -7,24 +7,10 @@ nested config into dotted keys for tables and filters.
 
 from __future__ import annotations
 
-import os
-
-__all__ = ["LINEAGE_KEYS", "RUN_DIR_ENV", "flatten", "is_rank_zero", "lineage_tags", "merge_overrides",
-           "override_key"]
+__all__ = ["LINEAGE_KEYS", "flatten", "lineage_tags", "merge_overrides", "override_key"]
 
 # run.json fields that say where a result came from; each becomes a tracker tag (`samp.<key>`).
 LINEAGE_KEYS = ("experiment", "seed", "dataset_id", "robot_sdf_artifact_id", "host", "run_dir")
-# Set by the rank-0 process of `samp.train` to its run folder, so that the processes Lightning starts for
-# the other DDP ranks (they inherit the environment) attach to the same folder instead of making new ones.
-RUN_DIR_ENV = "SAMP_RUN_DIR"
-
-
-def is_rank_zero() -> bool:
-    """True in the process that owns the run folder (global rank 0, or no distributed launch at all)."""
-    for var in ("RANK", "SLURM_PROCID", "LOCAL_RANK"):  # Lightning's order of precedence
-        if os.environ.get(var) not in (None, ""):
-            return int(os.environ[var]) == 0
-    return True
 
 
 def flatten(node, prefix: str = "") -> dict:

@@ -20,8 +20,9 @@ from pathlib import Path
 from pytorch_lightning.loggers import CSVLogger, MLFlowLogger, WandbLogger
 from pytorch_lightning.loggers.csv_logs import ExperimentWriter
 
+from samp.runs.distributed import is_rank_zero
 from samp.runs.folder import METRICS_CSV, RunFolder
-from samp.runs.lineage import flatten, is_rank_zero, lineage_tags
+from samp.runs.lineage import flatten, lineage_tags
 
 __all__ = ["RunCSVLogger", "finish_loggers", "mlflow_logger", "wandb_logger"]
 

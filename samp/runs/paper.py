@@ -15,6 +15,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from samp.eval.metrics import metric
 from samp.runs.registry import Run
 from samp.runs.tables import DASH, fmt
 
@@ -40,6 +41,13 @@ TABLE_I = (
 )
 TABLE_II = tuple(Row(str(n), (f"samp_n{n}",)) for n in (40, 70, 100, 130, 160))
 SPLITS = ("train", "heldout")
+# Table I's metric columns as the paper has them: (header, key in eval/metrics.json, scale, significant digits).
+TABLE_I_COLUMNS = (("soln. time [s]", metric("solution_time").key, 1.0, 3),
+                   ("path length [m]", metric("path_length").key, 1.0, 2),
+                   ("success [%]", metric("success_rate").key, 100.0, 3),
+                   ("collision [%]", metric("collision_rate").key, 100.0, 3))
+TABLE_II_RATES = tuple(metric(name).key for name in ("success_rate", "reach_rate", "collision_rate"))  # in percent
+INFERENCE_TIME = metric("inference_time").key  # seconds per policy step
 
 
 def _newest_evaluated(runs: list[Run], experiments: tuple[str, ...]) -> Run | None:
@@ -75,7 +83,7 @@ def _source(run: Run | None) -> str:
 
 
 def table_one(runs: list[Run], root: Path) -> tuple[list[str], list[list[str]]]:
-    header = ["method", "soln. time [s]", "path length [m]", "success [%]", "collision [%]", "run"]
+    header = ["method", *(title for title, *_ in TABLE_I_COLUMNS), "run"]
     rows = []
     for row in TABLE_I:
         run = _newest_evaluated(runs, row.experiments)
@@ -83,8 +91,8 @@ def table_one(runs: list[Run], root: Path) -> tuple[list[str], list[list[str]]]:
         source = _source(run)
         if block is None and row.planner == "expert":
             block, source = _expert_alone(root)
-        rows.append([row.label, _pair(block, "solution_time_mean"), _pair(block, "path_length_mean", digits=2),
-                     _pair(block, "success_rate", 100, 3), _pair(block, "collision_rate", 100, 3), source])
+        cells = [_pair(block, key, scale, digits) for _, key, scale, digits in TABLE_I_COLUMNS]
+        rows.append([row.label, *cells, source])
     return header, rows
 
 
@@ -97,12 +105,12 @@ def table_two(runs: list[Run]) -> tuple[list[str], list[list[str]]]:
         block = (run.evaluation or {}).get(row.planner) if run else None
         epochs, fit_s = (run.record.get("epochs"), run.record.get("fit_time_s")) if run else (None, None)
         per_epoch = fmt(fit_s / epochs, 3) if epochs and fit_s else DASH
-        infer = ((block or {}).get("all") or (block or {}).get("heldout") or {}).get("inference_time_mean")
+        infer = ((block or {}).get("all") or (block or {}).get("heldout") or {}).get(INFERENCE_TIME)
         rates = []
         for split in SPLITS:
             m = (block or {}).get(split) or {}
             rates.append(" / ".join(DASH if m.get(k) is None else fmt(100 * float(m[k]), 3)
-                                    for k in ("success_rate", "reach_rate", "collision_rate")))
+                                    for k in TABLE_II_RATES))
         rows.append([row.label, per_epoch, DASH if infer is None else fmt(float(infer), 2), *rates, _source(run)])
     return header, rows
 

@@ -9,13 +9,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from samp.eval.metrics import metric_keys
+from samp.names import EVAL_PREFIX
 from samp.runs.registry import Run, check_key
 from samp.runs.tables import fmt
 
-__all__ = ["CURVE_METRICS", "plot_bars", "plot_curves", "plot_run_summary"]
+__all__ = ["CURVE_METRICS", "RATES", "plot_bars", "plot_curves", "plot_run_summary"]
 
-# EvalCallback's rollout rates over all its problems (samp.eval.callback), the figure's two panels.
-CURVE_METRICS = ("eval/success_rate", "eval/reach_rate")
+# EvalCallback's values over all its problems (samp.eval.callback), the figure's panels: the metrics marked
+# `curve` in samp.eval.metrics.METRICS (success and reach rate).
+CURVE_METRICS = tuple(EVAL_PREFIX + key for key in metric_keys(curve=True))
 
 
 def _groups(runs: list[Run], by: str) -> dict:
@@ -94,7 +97,8 @@ def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
     return _save(plt, fig, out)
 
 
-RATES = ("success_rate", "reach_rate", "collision_rate")
+# A panel per rate flattened into run.json after training (samp.eval.metrics.METRICS): success, reach, collision.
+RATES = metric_keys(flat=True, rate=True)
 
 
 def plot_run_summary(run: Run, out: Path) -> Path:

@@ -15,14 +15,16 @@ import numpy as np
 
 from samp.cli import compose, output_path, run_command
 
-USAGE = "usage: python -m samp.scene show scene=NAME [seed=S] [n_e=N] [out=FILE.rrd]"
+USAGE = """usage: python -m samp.scene show scene=NAME [seed=S] [n_e=N] [out=FILE.rrd]
+  show    generate a scene, print it and its anchor grid; write a Rerun recording (obstacles, SDF slices,
+          anchors)"""
 
 
 def slice_indices(scene, n_e: int) -> np.ndarray:
     """(3,) anchor indices of the x, y and z slices: nearest the target, else the grid centre."""
     if scene.target is None:
         return np.full(3, n_e // 2)
-    from samp.viz import nearest_anchor_index
+    from samp.scene.viz import nearest_anchor_index
 
     return nearest_anchor_index(scene.target.pose.position, n_e, scene.bounds)
 
@@ -63,7 +65,7 @@ def show(overrides: list[str]) -> Path:
     import rerun as rr
 
     from samp.scene.registry import scene_from_config
-    from samp.viz import SDF_COLORMAP, anchor_stride, log_anchor_points, log_scene_obstacles, log_sdf_slice
+    from samp.scene.viz import SDF_COLORMAP, anchor_stride, log_anchor_points, log_scene_obstacles, log_sdf_slice
 
     scene = scene_from_config(OmegaConf.to_container(cfg.scene, resolve=True), int(cfg.seed))
     grid = scene.anchor_grid(cfg.n_e).numpy()  # (n_e, n_e, n_e), indexed (x, y, z); n_e is checked there
@@ -84,8 +86,14 @@ def show(overrides: list[str]) -> Path:
     return out
 
 
+def _help() -> str:
+    from samp.cli import command_help
+
+    return f"{USAGE}\n\nshow's options (key=default; conf/scene_show.yaml):\n{command_help('scene_show')}"
+
+
 def main(argv: list[str] | None = None) -> int:
-    return run_command(argv, USAGE, {"show": show})
+    return run_command(argv, _help, {"show": show})
 
 
 if __name__ == "__main__":

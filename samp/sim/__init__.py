@@ -1,6 +1,22 @@
-"""pybullet side of samp: bodies built from samp's own geometry, and the World of a robot in a scene."""
+"""pybullet side of samp: the World of a robot in a scene, simulated depth cameras and what they produce.
 
-from samp.sim.bodies import LinkBodies
-from samp.sim.world import World
+    from samp.sim import World
+    with World(robot, scene) as world:
+        world.in_collision(q), world.min_distance(q)      # q (B, n) radians -> (B,) bool, (B,) metres
 
-__all__ = ["LinkBodies", "World"]
+`LinkBodies` (a robot's own link bodies) lives in `samp.robot.bodies` and is re-exported here. Names are
+imported on first use, so that `samp.sim.scan` (plain dataclasses) stays light for `samp.perception`.
+"""
+
+from importlib import import_module
+
+_EXPORTS = {"LinkBodies": "samp.robot.bodies", "World": "samp.sim.world"}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'samp.sim' has no attribute {name!r}")
+    value = getattr(import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value

@@ -30,8 +30,8 @@ import numpy as np
 import pybullet as pb
 import torch
 
-from samp.perception.cloud import DepthView, Scan
 from samp.scene.model import Box, Cylinder, MeshObstacle, Scene, Sphere
+from samp.sim.scan import DepthView, Scan
 
 __all__ = ["Camera", "CameraSet", "DepthImage", "Renderer", "back_project", "camera_set", "linear_depth",
            "load_camera_set", "robot_volume"]

@@ -33,7 +33,7 @@ import trimesh
 
 from samp.scene.model import Box, Cylinder, MeshObstacle, Obstacle, Scene, Sphere
 from samp.scene.sdf import obstacle_parts
-from samp.sim.bodies import MESH_MARGIN, LinkBodies
+from samp.robot.bodies import MESH_MARGIN, LinkBodies
 
 __all__ = ["World", "DEFAULT_MAX_DISTANCE", "LIMIT_TOLERANCE"]
 
@@ -215,7 +215,7 @@ class World:
         return self._renderer.capture(load_camera_set(cameras), q, seed)
 
     def capture(self, cameras, q=None, seed: int | None = None) -> list:
-        """`depth_images` back-projected: one `samp.perception.Scan` per camera, base frame, the robot's
+        """`depth_images` back-projected: one `samp.sim.scan.Scan` per camera, base frame, the robot's
         own pixels removed from the points (their rays kept as free space)."""
         return [image.scan() for image in self.depth_images(cameras, q, seed)]
 

@@ -1,12 +1,16 @@
-"""`python -m samp.train +experiment=NAME [key=value ...]`: compose, seed, instantiate, fit, evaluate, record.
+"""`python -m samp.train experiment=NAME [key=value ...]`: compose, prepare, seed, instantiate, fit,
+evaluate, record.
 
 The experiment decides what is trained (`system`, `datamodule`, `model`, each a `_target_`); this file
-only runs the recipe. Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR` or `paths.runs_dir`
-moves the root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and whatever the system's
-`evaluate_run(run_dir) -> metrics` writes. `resume=RUN_DIR` continues a run in its own folder from its
-last checkpoint, with the overrides it was started with (new ones win) and its loggers continuing;
-`run_dir=DIR` puts a new run in a folder of your choice. `-m` / `+sweep=NAME` hand the arguments to the
-Hydra multirun entry point (`samp.train.sweep`), which calls `train` once per sweep member.
+only runs the recipe. Before fitting, `prerequisites.prepare` resolves the system's robot SDF by name and
+builds what is missing when `build_missing` says so; after fitting, `after_fit.after_fit` evaluates the
+model just trained, in memory (`evaluation.problems` per split for a policy; export and Table III for a
+robot SDF). Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR` or `paths.runs_dir` moves the root)
+with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the evaluation writes.
+`resume=RUN_DIR` continues a run in its own folder from its last checkpoint, with the overrides it was
+started with (new ones win) and its loggers continuing; `run_dir=DIR` puts a new run in a folder of your
+choice. `-m` / `sweep=NAME` hand the arguments to the Hydra multirun entry point (`samp.train.sweep`),
+which calls `train` once per sweep member.
 """
 
 from __future__ import annotations
@@ -22,10 +26,14 @@ from typing import Any
 
 __all__ = ["compose_train_config", "main", "train"]
 
-USAGE = """usage: python -m samp.train +experiment=NAME [key=value ...]   (experiments: conf/experiment/*.yaml)
-       python -m samp.train resume=RUN_DIR [key=value ...]    (continue a run from its checkpoints/last.ckpt)
-       python -m samp.train -m +sweep=NAME [hydra/launcher=runs_joblib|runs_slurm] [key=value ...]
-                                                             (a sweep: conf/sweep/*.yaml, see samp/train/sweep.py)"""
+USAGE = """usage: python -m samp.train experiment=NAME [key=value ...]        train a run (runs/<name>/<timestamp>/)
+       python -m samp.train experiment=NAME [key=value ...] --cfg job|hydra|all [--resolve]
+                                                                 print the composed config; nothing is trained
+       python -m samp.train resume=RUN_DIR [key=value ...]         continue a run from its checkpoints/last.ckpt
+       python -m samp.train -m sweep=NAME [hydra/launcher=runs_joblib|runs_slurm] [key=value ...]   a sweep
+       python -m samp.train -m experiment=A,B [seed=0,1] [key=value ...]                             an ad-hoc sweep
+key=value sets any config key (trainer.max_epochs=3), GROUP=OPTION picks a config of a group (trainer=gpu);
++experiment=NAME and +sweep=NAME mean the same as experiment=NAME and sweep=NAME. `--help` lists the options."""
 HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
 
 
@@ -43,6 +51,8 @@ class TrainSchema:
     model: Any = None
     paths: Any = None
     robot: Any = None
+    build_missing: Any = None
+    evaluation: Any = None
     run_dir: Any = None
     resume: Any = None
 
@@ -158,7 +168,7 @@ def _open_folder(cfg):
     import os
 
     from samp.runs import RunFolder
-    from samp.runs.lineage import RUN_DIR_ENV, is_rank_zero
+    from samp.runs.distributed import RUN_DIR_ENV, is_rank_zero
 
     if not is_rank_zero():  # another DDP rank: rank 0's folder (Lightning's launcher passes it in the environment)
         path = os.environ.get(RUN_DIR_ENV) or cfg.resume or cfg.run_dir
@@ -190,16 +200,20 @@ def train(overrides: list[str], **info):
     from hydra.utils import instantiate
     from omegaconf import OmegaConf, open_dict
 
-    from samp.runs.lineage import is_rank_zero
+    from samp.runs.distributed import is_rank_zero
     from samp.runs.loggers import finish_loggers
+    from samp.train.after_fit import after_fit
+    from samp.train.prerequisites import prepare
 
     overrides = _resume_overrides(list(overrides))
     cfg = compose_train_config(overrides)
+    with open_dict(cfg):
+        cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
+        cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
+        prepare(cfg)  # before this run's folder exists: a robot SDF built here is a run of its own
     folder, ckpt = _open_folder(cfg)
     with open_dict(cfg):
         cfg.run_dir = str(folder.path)
-        cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
-        cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
     rank_zero = is_rank_zero()
     if rank_zero:
         folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
@@ -228,7 +242,7 @@ def train(overrides: list[str], **info):
         folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step),
                       epochs=int(trainer.current_epoch), fit_time_s=fit_s, metrics=metrics,
                       robot_sdf_artifact_id=getattr(system, "robot_sdf_artifact_id", None))
-        evaluated = system.evaluate_run(folder.path) if hasattr(system, "evaluate_run") else {}
+        evaluated = after_fit(cfg, system, datamodule, folder.path)
         metrics.update(evaluated)
         record = folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id")
                                or folder.read().get("robot_sdf_artifact_id"))
@@ -247,15 +261,85 @@ def _trim_metrics(folder, ckpt: Path) -> None:
               "metrics.superseded.csv", flush=True)
 
 
+def _help() -> str:
+    """USAGE, then what conf/ offers: experiments, sweeps, and the options of each config group."""
+    from omegaconf import OmegaConf
+
+    from samp.cli import config_names, default_groups, describe, wrap
+    from samp.paths import conf_dir
+
+    defaults = {g: o for g, o in default_groups("train").items() if g not in ("experiment", "sweep")}
+    added = set()  # groups an experiment adds to the defaults list (`- /robot_sdf_samples: default`)
+    for name in config_names("experiment"):
+        raw = OmegaConf.to_container(OmegaConf.load(conf_dir() / "experiment" / f"{name}.yaml"))
+        for entry in raw.get("defaults") or []:
+            added |= {k.lstrip("/") for k in (entry if isinstance(entry, dict) else {}) if k.startswith("/")}
+    lines = [USAGE, "", "experiments (experiment=NAME; conf/experiment/NAME.yaml):"]
+    lines += [f"  {n:<24}{describe('experiment', n)}" for n in config_names("experiment")]
+    lines += ["", "sweeps (-m sweep=NAME; conf/sweep/NAME.yaml):"]
+    lines += [f"  {n:<24}{describe('sweep', n)}" for n in config_names("sweep")]
+    lines += ["", "config groups (GROUP=OPTION; conf/GROUP/OPTION.yaml; * marks the default):"]
+    for group in sorted(set(defaults) | added):
+        note = ("(added by the experiments that use it)" if group not in defaults
+                else "(the experiment picks one)" if defaults[group] is None else "")
+        options = [o + ("*" if o == defaults.get(group) else "") for o in config_names(group)]
+        lines.append(wrap([f"{group:<20}", *options, note], "  ", 100).replace("\n  ", "\n" + " " * 24))
+    return "\n".join(lines)
+
+
+def _cfg_flags(argv: list[str]) -> tuple[str | None, bool | None, list[str]]:
+    """Hydra's `--cfg job|hydra|all` (`-c`) and `--resolve`: (what to print or None, resolve, the rest)."""
+    show, resolve, rest = None, None, []
+    args = iter(argv)
+    for a in args:
+        if a in ("--cfg", "-c") or a.startswith("--cfg="):
+            show = a.partition("=")[2] if "=" in a else next(args, "")
+            if show not in ("job", "hydra", "all"):
+                raise ValueError(f"--cfg takes job, hydra or all, got {show!r}")
+        elif a == "--resolve":
+            resolve = True
+        else:
+            rest.append(a)
+    if resolve and show is None:
+        raise ValueError("--resolve goes with --cfg job|hydra|all (print the config resolved, and train nothing)")
+    return show, resolve, rest
+
+
+def _print_config(overrides: list[str], show: str, resolve: bool | None) -> None:
+    """`--cfg`: the config a run would get (checked as for a run; interpolations resolved where they can be),
+    `hydra:` Hydra's own settings (as written), or both."""
+    from omegaconf import OmegaConf
+
+    from samp.cli import compose, config_yaml
+
+    overrides = _resume_overrides([a for a in overrides if a not in ("-m", "--multirun")])
+    cfg = compose_train_config(overrides)
+    if show in ("job", "all"):
+        print(config_yaml(cfg, resolve), end="")
+    if show in ("hydra", "all"):
+        hydra = compose("train", overrides, return_hydra_config=True).hydra
+        print(OmegaConf.to_yaml({"hydra": OmegaConf.to_container(hydra, resolve=False)}), end="")
+
+
 def main(argv: list[str] | None = None) -> int:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    from samp.cli import wants_help
     from samp.runs.folder import Terminated
 
-    argv = sys.argv[1:] if argv is None else argv
-    if any(a in ("-h", "--help") for a in argv) or not argv:
-        print(USAGE, file=sys.stderr)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if wants_help(argv) or not argv:
+        print(_help(), file=sys.stdout if argv else sys.stderr)
+        return 0 if argv else 2
+    bad_input = (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError)
+    try:
+        show, resolve, argv = _cfg_flags(argv)
+        if show is not None:
+            _print_config(argv, show, resolve)
+            return 0
+    except bad_input as err:
+        print(f"error: {err}", file=sys.stderr)
         return 2
     if any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv):
         from samp.train.sweep import multirun
@@ -263,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
         return multirun([a for a in argv if a not in ("-m", "--multirun")])
     try:
         folder = train(argv)
-    except (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError) as err:
+    except bad_input as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except FloatingPointError as err:  # a diverged run: run.json says failed, checkpoints/ keeps the last good state

@@ -27,7 +27,7 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
 
     `overrides` go to both network runs (e.g. `trainer.accelerator=cpu`, `robot_sdf_samples=tiny`);
     `rdf` maps N -> `fit_bernstein` keyword arguments (default `RDF_DEFAULTS`); `evaluation` holds
-    `EvalConfig` fields.
+    `SDFEvalConfig` fields.
     """
     import json
 
@@ -37,9 +37,9 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
     from samp.robot import load_robot
     from samp.robot_sdf.artifact import load_robot_sdf, net_spec, save_artifact
     from samp.robot_sdf.baselines import fit_bernstein
-    from samp.robot_sdf.evaluate import EvalConfig, evaluate_methods
-    from samp.robot_sdf.query import RobotSDF
+    from samp.robot_sdf.evaluate import SDFEvalConfig, evaluate_methods
     from samp.robot_sdf.samples import dataset_name, load_samples
+    from samp.robot_sdf.whole_robot import RobotSDF
     from samp.runs import RunFolder, runs_root as default_root
     from samp.train import train
 
@@ -48,7 +48,7 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
         model = load_robot(robot, dtype=torch.float32)
         methods, runs = {}, {}
         for name in NETWORK_MODELS:
-            run = train([f"+experiment=robot_sdf_{robot}", f"model={name}", "system.evaluation=null",
+            run = train([f"+experiment=robot_sdf_{robot}", f"model={name}", "~robot_sdf_eval",
                          f"paths.runs_dir={folder.path.parent.parent}", *overrides])
             record = run.read()
             sdf = load_robot_sdf(run.path, model)
@@ -68,7 +68,7 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
                           {"train_time_s": seconds, "fit": {"iterations": info.iterations, "residuals": info.residuals}})
             methods[sdf.method] = {"model": sdf, "train_time_s": seconds}
             runs[sdf.method] = {"fit_iterations": info.iterations, "fit_residuals": info.residuals}
-        report = evaluate_methods(model, methods, EvalConfig(**(evaluation or {})), folder.path)
+        report = evaluate_methods(model, methods, SDFEvalConfig(**(evaluation or {})), folder.path)
         report["runs"], report["dataset_id"] = runs, dataset_id
         (folder.path / "robot_sdf_table.json").write_text(json.dumps(report, indent=2))
         folder.update(dataset_id=dataset_id, runs=runs,

@@ -1,18 +1,20 @@
 """Sweeps: Hydra multirun over the training recipe, one run folder per member, named by its overrides.
 
-    python -m samp.train -m +sweep=anchor_size                          # members one after another
-    python -m samp.train -m +sweep=anchor_size hydra/launcher=runs_joblib hydra.launcher.n_jobs=2
-    python -m samp.train -m +sweep=loss_ablation trainer=gpu hydra/launcher=runs_slurm hydra.launcher.partition=P
-    python -m samp.train -m +experiment=samp_n40,samp_n70 seed=0,1     # an ad-hoc sweep
+    python -m samp.train -m sweep=anchor_size                           # members one after another
+    python -m samp.train -m sweep=anchor_size hydra/launcher=runs_joblib hydra.launcher.n_jobs=2
+    python -m samp.train -m sweep=loss_ablation trainer=gpu hydra/launcher=runs_slurm hydra.launcher.partition=P
+    python -m samp.train -m experiment=samp_n40,samp_n70 seed=0,1      # an ad-hoc sweep
 
-`samp.train` composes with Hydra's compose API; `-m` (or `+sweep=NAME`) hands the arguments to `multirun`
-here, which runs Hydra's own `main` on conf/train.yaml so that sweepers and launchers (basic, joblib,
-submitit/SLURM) work as Hydra documents them. A sweep config (conf/sweep/NAME.yaml) sets
+(`+sweep=NAME` and `+experiment=...` are read as `sweep=NAME` and `experiment=...`: both groups are in
+conf/train.yaml's defaults list.) `samp.train` composes with Hydra's compose API; `-m` (or `sweep=NAME`)
+hands the arguments to `multirun` here, which runs Hydra's own `main` on conf/train.yaml so that sweepers
+and launchers (basic, joblib, submitit/SLURM) work as Hydra documents them. A sweep config (conf/sweep/NAME.yaml) sets
 `hydra.sweeper.params` and `hydra.sweep.dir` (runs/sweeps/NAME). Every member is exactly
 `samp.train.train(its overrides + run_dir=<member folder>)`, so it is checked, recorded and evaluated like
 a single run. Its folder is `<sweep dir>/<override_dirname>`, built from the overrides that vary between
-members and the experiment, e.g. `runs/sweeps/anchor_size/+experiment=samp_n40/`; the other overrides
-are recorded in the member's run.json.
+members and the experiment, e.g. `runs/sweeps/anchor_size/experiment=samp_n40/`; the other overrides
+are recorded in the member's run.json. A member folder named before `experiment` joined the defaults list
+(`+experiment=samp_n40`) is still found and used in place.
 
 Running a sweep again: a member whose run.json says completed with the same overrides is skipped; one
 completed with other overrides is an error (use another `hydra.sweep.dir`); an interrupted or failed
@@ -31,13 +33,18 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
+from samp.runs.distributed import is_rank_zero
+from samp.cli import canonical_overrides
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
-from samp.runs.lineage import is_rank_zero, override_key
+from samp.runs.lineage import override_key
 
 __all__ = ["member_state", "multirun"]
 
 # Overrides of the member itself that the folder name never needs (they do not vary in a sweep).
 ALWAYS_NAMED = ("experiment",)
+# Groups that member folders were once named with a `+` (`+experiment=samp_n40`), before conf/train.yaml's
+# defaults list named them: such a folder is found again (skipped, resumed) rather than started anew.
+LEGACY_ADDED = ("experiment",)
 
 
 def _swept_keys(overrides: list[str]) -> tuple[set[str], str | None]:
@@ -57,6 +64,10 @@ def _swept_keys(overrides: list[str]) -> tuple[set[str], str | None]:
             known = ", ".join(sorted(p.stem for p in (conf_dir() / "sweep").glob("*.yaml")))
             raise ValueError(f"no sweep {sweep!r} (conf/sweep/{sweep}.yaml); sweeps: {known}")
         params = OmegaConf.select(OmegaConf.load(path), "hydra.sweeper.params") or {}
+        added = [str(k) for k in params if canonical_overrides("train", [f"{k}=x"]) != [f"{k}=x"]]
+        if added:  # Hydra would refuse each member ("Multiple values for experiment")
+            raise ValueError(f"conf/sweep/{sweep}.yaml: write {', '.join(k[1:] for k in added)} without the `+` under "
+                             "hydra.sweeper.params (conf/train.yaml's defaults list already names that group)")
         swept |= {override_key(str(k)) for k in params}
     return swept, sweep
 
@@ -67,8 +78,8 @@ def _hydra_settings(overrides: list[str]) -> list[str]:
     keys = [override_key(o) for o in overrides]
     named = swept | set(ALWAYS_NAMED)
     if not named & set(keys) and not swept:
-        raise ValueError("a sweep needs something to vary: +sweep=NAME (conf/sweep/), or an override with several "
-                         "values such as +experiment=samp_n40,samp_n70 or seed=0,1")
+        raise ValueError("a sweep needs something to vary: sweep=NAME (conf/sweep/), or an override with several "
+                         "values such as experiment=samp_n40,samp_n70 or seed=0,1")
     exclude = sorted({k for k in keys if not k.startswith("hydra") and k not in named} | {"sweep"})
     settings = {"hydra.job.config.override_dirname.exclude_keys": "[" + ",".join(f"'{k}'" for k in exclude) + "]",
                 "hydra.sweep.subdir": "${hydra.job.override_dirname}",
@@ -86,6 +97,7 @@ def multirun(argv: list[str]) -> int:
 
     from samp.paths import REPO_ROOT, conf_dir
 
+    argv = canonical_overrides("train", argv)  # +experiment=, +sweep= as experiment=, sweep=
     try:
         settings = _hydra_settings(argv)
     except ValueError as err:
@@ -107,6 +119,8 @@ def member_state(folder: Path, overrides: list[str]) -> str:
     run = RunFolder(folder)
     record = run.read()
     recorded = [o for o in record.get("overrides", []) if override_key(o) not in ("resume", "run_dir")]
+    # `+experiment=X` (as recorded before the defaults list named the group) and `experiment=X` are one override
+    recorded, overrides = canonical_overrides("train", recorded), canonical_overrides("train", overrides)
     if record.get("status") == "completed":
         if sorted(recorded) == sorted(overrides):
             return "skip"
@@ -151,6 +165,31 @@ def _outside_hydra():
         GlobalHydra.instance().hydra = running
 
 
+def _legacy_folder(folder: Path, hc, tidy: bool) -> Path:
+    """`folder`, or the folder an earlier version gave this member (`+experiment=NAME,...`, Hydra's naming
+    with the `+`) when only that one holds a run.json. With `tidy`, the new folder, which Hydra has just
+    made and which holds at most its empty log, is removed."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    if (folder / RUN_JSON).is_file():
+        return folder
+    naming = hc.job.config.override_dirname
+    lines = sorted(f"+{o.input_line}" if o.key_or_group in LEGACY_ADDED and not o.input_line.startswith("+")
+                   else o.input_line for o in OverridesParser.create().parse_overrides(list(hc.overrides.task))
+                   if o.key_or_group not in naming.exclude_keys)
+    legacy = folder.parent / naming.item_sep.join(lines).replace("=", naming.kv_sep)
+    if legacy == folder or not (legacy / RUN_JSON).is_file():
+        return folder
+    if tidy and folder.is_dir():
+        for path in folder.iterdir():
+            if path.suffix == ".log" and path.stat().st_size == 0:
+                path.unlink()
+        if not any(folder.iterdir()):
+            folder.rmdir()
+        print(f"{legacy.name}: the folder an earlier run of this sweep gave this member, used in place", flush=True)
+    return legacy
+
+
 def _member(cfg) -> dict | None:
     """One sweep member (Hydra's task function): skip, resume or start it in its folder."""
     from hydra.core.hydra_config import HydraConfig
@@ -164,6 +203,8 @@ def _member(cfg) -> dict | None:
     if "ddp" in strategy and "submitit" not in str(hc.launcher.get("_target_", "")):
         raise ValueError(f"trainer.strategy={strategy} in a sweep needs the SLURM launcher (hydra/launcher=runs_slurm): "
                          "Lightning's local DDP launcher would run the whole sweep again in every rank")
+    named = folder
+    folder = _legacy_folder(folder, hc, tidy=is_rank_zero())
     if is_rank_zero():
         state = member_state(folder, overrides)
     else:  # the other SLURM tasks of a DDP member follow rank 0 (samp.train attaches them to its folder)
@@ -173,7 +214,8 @@ def _member(cfg) -> dict | None:
         return RunFolder(folder).read().get("metrics")
     quoted = "'" + str(folder).replace("\\", "\\\\").replace("'", "\\'") + "'"  # member names hold = and ,
     where = f"resume={quoted}" if state == "resume" else f"run_dir={quoted}"
-    sweep = {"dir": str(Path(hc.sweep.dir).resolve()), "member": hc.job.override_dirname}
+    sweep = {"dir": str(Path(hc.sweep.dir).resolve()), "member": hc.job.override_dirname if folder == named
+             else folder.name}
     with _outside_hydra():
         run = train([*overrides, where], sweep=sweep)
     return run.read().get("metrics")

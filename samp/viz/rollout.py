@@ -3,8 +3,8 @@ pose and its points coloured by collision risk, end-effector paths, markers, and
 
 One recording holds many rollouts one after another on the `frame` timeline (each also carries its
 `rollout` index and `step`), so everything here is logged as temporal data at the caller's time (the
-scene helpers in `samp.viz.scene` log static data, which cannot change between rollouts). Robot link
-meshes are static (`samp.viz.robot.log_robot_meshes`); only their transforms are logged per step.
+scene helpers in `samp.scene.viz` log static data, which cannot change between rollouts). Robot link
+meshes are static (`samp.robot.viz.log_robot_meshes`); only their transforms are logged per step.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from samp.viz.scene import (OBSTACLE_COLORS, QUAD_TRIANGLES, TABLE_COLOR, TABLE_NAME, TARGET_COLOR, obstacle_trimesh,
+from samp.scene.viz import (OBSTACLE_COLORS, QUAD_TRIANGLES, TABLE_COLOR, TABLE_NAME, TARGET_COLOR, obstacle_trimesh,
                             sdf_colors, slice_quad, zero_contour)
 
 __all__ = ["RISK_COLORMAP", "PATH_COLORS", "log_markers", "log_path", "log_robot_state", "log_scene_frame",
@@ -52,7 +52,7 @@ def log_scene_frame(rec: rr.RecordingStream, scene, entity: str = "world/scene")
 def log_sdf_plane(rec: rr.RecordingStream, plane, axis: int, index: int, bounds, vmax: float,
                   entity: str = "world/sdf") -> None:
     """A colour-mapped SDF slice and its zero level set, from the current time on (the temporal twin of
-    `samp.viz.scene.log_sdf_slice`, with the same geometry and colours).
+    `samp.scene.viz.log_sdf_slice`, with the same geometry and colours).
 
     `plane` (n_e, n_e) is the slice `np.take(grid, index, axis)` of an (x, y, z)-indexed grid (n_e,)^3 over
     `bounds`; only the plane is needed, so a caller may compute it alone."""
@@ -60,7 +60,7 @@ def log_sdf_plane(rec: rr.RecordingStream, plane, axis: int, index: int, bounds,
     n_e = plane.shape[0]
     if plane.shape != (n_e, n_e):
         raise ValueError(f"plane must be a square (n_e, n_e) slice of a grid, got shape {plane.shape}")
-    image = plane.T  # (v, u), as samp.viz.scene.slice_values orders it
+    image = plane.T  # (v, u), as samp.scene.viz.slice_values orders it
     corners, texcoords = slice_quad(axis, index, n_e, bounds)
     rec.log(f"{entity}/image", rr.Mesh3D(vertex_positions=corners.astype(np.float32), triangle_indices=QUAD_TRIANGLES,
                                          vertex_texcoords=texcoords.astype(np.float32),

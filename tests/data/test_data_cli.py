@@ -98,7 +98,7 @@ def test_merge_names_missing_scenes(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (("show", "nope"), "no dataset 'nope'"),
-    (("generate",), "say which dataset spec to use: +dataset=NAME"),
+    (("generate",), "say which dataset spec to use: dataset=NAME"),
     (("generate", "+dataset=nope"), "nope"),
     (("generate", "+dataset=quickstart", "workers=0"), "workers must be >= 1"),
     (("verify",), "say which dataset"),

@@ -23,8 +23,8 @@ def demo(tmp_path_factory, _isolated_cache):
     env = {**os.environ, "SAMP_RUNS_DIR": str(tmp / "runs"), "SAMP_DATASETS_DIR": str(tmp / "datasets")}
     cmd = [sys.executable, "-m", "samp.train", "+experiment=quickstart", "datamodule.dataset=smoke",
            "datamodule.n_e=16", "datamodule.val_samples=50", "trainer.max_epochs=1",
-           "+trainer.limit_train_batches=4", "trainer.enable_progress_bar=false", "system.eval_problems=2",
-           "system.build_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
+           "+trainer.limit_train_batches=4", "trainer.enable_progress_bar=false", "evaluation.problems=2",
+           "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     (run,) = (tmp / "runs" / "quickstart").iterdir()

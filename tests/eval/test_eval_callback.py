@@ -31,7 +31,7 @@ class TinySystem(pl.LightningModule):
         self.robot = robot
         self.w = torch.nn.Parameter(torch.ones(3))
 
-    def step_policy(self):
+    def planner(self):
         return StraightLinePolicy(self.robot) if self.current_epoch % 2 == 1 else _Still(self.robot)
 
     def training_step(self, batch, _):
@@ -81,13 +81,13 @@ def test_the_callback_runs_every_k_epochs_only(tiny_problems, panda, tmp_path):
     assert not (tmp_path / "checkpoints").exists()
 
 
-def test_a_module_without_step_policy_or_a_dataset_is_refused(tiny_problems, tmp_path):
+def test_a_module_without_a_planner_or_a_dataset_is_refused(tiny_problems, tmp_path):
     with pytest.raises(ValueError, match="give dataset=REF"):
         EvalCallback(problems=8)
 
     class NoPolicy(TinySystem):
-        step_policy = None
+        planner = None
 
     callback = EvalCallback(problems=tiny_problems[1][:1])
-    with pytest.raises(TypeError, match="step_policy"):
+    with pytest.raises(TypeError, match=r"NoPolicy.planner\(\)"):
         _trainer(tmp_path, callback, epochs=1).fit(NoPolicy(None))

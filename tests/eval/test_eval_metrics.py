@@ -185,3 +185,141 @@ def test_the_float64_copy_of_a_float32_robot_keeps_its_exact_limits(panda):
     assert copy.dtype == torch.float64
     torch.testing.assert_close(copy.joint_limits, panda.joint_limits, rtol=0, atol=0)
     torch.testing.assert_close(copy.home, panda.home, rtol=0, atol=0)
+
+
+# ---------------------------------------------------------------- the metric registry pins today's output
+def _problem(reached: tuple[bool, bool], length, time, steps: list[float], termination: str = "reached",
+             collision: float | None = None, self_collision: bool = False, limits: bool = False) -> dict:
+    """A hand-made record: `reached` at (2cm, 1cm), `collision` the penetration depth when it collided."""
+    return {"reached": {"2cm": reached[0], "1cm": reached[1]}, "collision": collision is not None,
+            "self_collision": self_collision, "joint_limit_violation": limits, "path_length": length,
+            "solution_time": time, "step_times": steps, "steps": len(steps),
+            "collision_depth": 0.0 if collision is None else collision, "termination": termination}
+
+
+# Six problems, the expected metrics worked out by hand below.
+PINNED = [
+    _problem((True, True), 1.0, 0.2, [0.01, 0.03]),                        # success at 2 and 1 cm
+    _problem((True, False), 2.0, 0.4, [0.02]),                             # success at 2 cm only
+    _problem((True, True), 4.0, 0.6, [0.04], collision=0.05),              # reached, collided
+    _problem((False, False), None, None, [0.02, 0.02, 0.02], "stalled", self_collision=True),
+    _problem((True, False), 3.0, 0.8, [0.02, 0.02], collision=0.03, limits=True),
+    _problem((False, False), 5.0, None, [0.06], "max_steps"),
+]
+
+
+def test_summarize_keeps_its_keys_order_and_values():
+    """Every key metrics.json has had, in its order, with values worked out by hand (population std)."""
+    m = summarize(PINNED, RolloutConfig())
+    # violations: problems 2 (collision), 3 (self-collision), 4 (collision and limits)
+    # successes: problems 0 and 1 at 2 cm, problem 0 at 1 cm; reached: 0, 1, 2, 4 at 2 cm, 0 and 2 at 1 cm
+    # path length over the successes {1, 2}: 1.5 ± 0.5; over every known length {1, 2, 4, 3, 5}: 3 ± sqrt(2)
+    # solution time over {0.2, 0.4, 0.6, 0.8}: 0.5 ± sqrt(0.05)
+    # step times {0.01, 0.03, 0.02, 0.04, 0.02 x5, 0.06}: mean 0.26 / 10, squared deviations sum to 0.00184
+    expected = {
+        "problems": 6,
+        "success_rate@2cm": 2 / 6, "reach_rate@2cm": 4 / 6, "success_rate@1cm": 1 / 6, "reach_rate@1cm": 2 / 6,
+        "success_rate": 2 / 6, "reach_rate": 4 / 6,
+        "collision_rate": 2 / 6, "self_collision_rate": 1 / 6, "joint_limit_rate": 1 / 6, "violation_rate": 3 / 6,
+        "path_length_mean": 1.5, "path_length_std": 0.5,
+        "path_length_all_mean": 3.0, "path_length_all_std": np.sqrt(2.0),
+        "solution_time_mean": 0.5, "solution_time_std": np.sqrt(0.05),
+        "inference_time_mean": 0.026, "inference_time_std": np.sqrt(0.00184 / 10),
+        "steps_mean": 10 / 6,
+        "collision_depth_mean": 0.04, "collision_depth_max": 0.05,
+        "terminations": {"reached": 4, "stalled": 1, "max_steps": 1},
+    }
+    assert list(m) == list(expected), f"keys: expected {list(expected)}, got {list(m)}"
+    for key, want in expected.items():
+        assert m[key] == pytest.approx(want, rel=1e-12), f"{key}: expected {want}, got {m[key]}"
+    assert list(m["terminations"]) == ["reached", "stalled", "max_steps"], "in order of first appearance"
+    assert type(m["problems"]) is int and all(type(m[k]) is float for k in expected if k.endswith(("rate", "_mean")))
+
+
+def test_summarize_without_successes_collisions_or_problems():
+    nothing = [_problem((False, False), 2.0, 0.5, [0.01], "max_steps")]
+    m = summarize(nothing, RolloutConfig(report_tolerances=[]))
+    assert [k for k in m if "@" in k] == ["success_rate@2cm", "reach_rate@2cm"], "one tolerance: one key each"
+    assert m["success_rate"] == 0.0 and m["path_length_mean"] is None and m["path_length_std"] is None
+    assert m["path_length_all_mean"] == 2.0 and m["path_length_all_std"] == 0.0
+    assert m["collision_depth_mean"] is None and m["collision_depth_max"] is None
+    assert summarize([], RolloutConfig()) == {"problems": 0}
+
+
+def test_markdown_table_keeps_its_header_cells_and_note():
+    from samp.eval.metrics import TABLE_COLUMNS, markdown_table
+
+    cfg = RolloutConfig()
+    table = markdown_table([("samp", "heldout", summarize(PINNED, cfg)), ("expert", "train", {})], cfg)
+    # soln. time 0.5 ± sqrt(0.05) = 0.2236; path length 1.5 ± 0.5; rates in percent to one decimal;
+    # step time 26 ± 1e3 * sqrt(0.000184) = 13.565 ms
+    expected = (
+        "| planner | split | problems | soln. time [s] | path length [m] | success@2cm [%] | success@1cm [%] "
+        "| reach@2cm [%] | reach@1cm [%] | collision [%] | self-coll. [%] | joint limits [%] | step [ms] |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+        "| samp | heldout | 6 | 0.500 ± 0.224 | 1.50 ± 0.50 | 33.3 | 16.7 | 66.7 | 33.3 | 33.3 | 16.7 | 16.7 "
+        "| 26.00 ± 13.56 |\n"
+        "| expert | train | 0 | - | - | - | - | - | - | - | - | - | - |\n"
+        "\n"
+        "Reached: end-effector within 2cm and 15 deg at the end of the rollout (which stops at 2cm); success: "
+        "reached with no collision, self-collision or joint-limit violation. Path length: mean ± std over "
+        "successful problems; times over all problems.\n")
+    assert table == expected, f"expected\n{expected}\ngot\n{table}"
+    assert TABLE_COLUMNS == ["planner", "split", "problems", "soln. time [s]", "path length [m]", "success [%]",
+                             "reach [%]", "collision [%]", "self-coll. [%]", "joint limits [%]", "step [ms]"]
+
+
+def test_the_registry_names_what_each_consumer_used_to_list():
+    """The registry's sets are the tuples the consumers spelled out before it existed."""
+    from samp.eval.callback import LOGGED_METRICS, MONITOR
+    from samp.eval.metrics import flat_metrics, logged_metrics, metric_keys, table_metrics
+
+    assert logged_metrics() == LOGGED_METRICS == (
+        "success_rate", "reach_rate", "collision_rate", "self_collision_rate", "joint_limit_rate", "path_length_mean",
+        "solution_time_mean", "inference_time_mean", "steps_mean")
+    assert MONITOR == "success_rate"
+    assert flat_metrics() == ("success_rate", "reach_rate", "collision_rate", "path_length_mean", "solution_time_mean")
+    assert metric_keys(flat=True, rate=True) == ("success_rate", "reach_rate", "collision_rate")
+    assert metric_keys(curve=True) == ("success_rate", "reach_rate")
+    assert [m.name for m in table_metrics()] == ["solution_time", "path_length", "success_rate", "reach_rate",
+                                                 "collision_rate", "self_collision_rate", "joint_limit_rate",
+                                                 "inference_time"]
+
+
+def test_the_registry_refuses_unknown_names_and_bad_definitions():
+    from samp.eval.metrics import Column, Metric, metric, recorded
+
+    assert metric("path_length").key == "path_length_mean" and metric("collision_rate").key == "collision_rate"
+    with pytest.raises(ValueError, match="no metric 'sucess_rate'; registered: success_rate, reach_rate"):
+        metric("sucess_rate")
+    with pytest.raises(ValueError, match="stats must be one of"):
+        Metric("odd", recorded("steps"), "median")
+    with pytest.raises(ValueError, match="a table column shows a rate or a mean_std"):
+        Metric("odd", recorded("termination"), "counts", column=Column("odd", "%", digits=1, rank=99))
+    with pytest.raises(ValueError, match="logged=True"):
+        Metric("odd", recorded("collision"), "rate", curve=True)
+
+
+def test_a_metric_added_to_the_registry_reaches_summarize_and_the_table(monkeypatch):
+    """Adding a metric is one entry in METRICS: here a stall rate, as a column after the step time."""
+    from samp.eval import metrics
+    from samp.eval.metrics import METRICS, Column, Metric, markdown_table
+
+    stall = Metric("stall_rate", lambda r, tol: r["termination"] == "stalled", "rate",
+                   column=Column("stalled", "%", digits=1, rank=90), logged=True)
+    monkeypatch.setattr(metrics, "METRICS", (*METRICS, stall))
+    m = summarize(PINNED, RolloutConfig())
+    assert list(m)[-2:] == ["terminations", "stall_rate"] and m["stall_rate"] == pytest.approx(1 / 6)
+    assert metrics.logged_metrics()[-1] == "stall_rate"
+    lines = markdown_table([("samp", "heldout", m)], RolloutConfig()).splitlines()
+    assert lines[0].endswith("| step [ms] | stalled [%] |") and lines[2].endswith("| 26.00 ± 13.56 | 16.7 |"), lines
+
+
+def test_the_metrics_module_stays_below_samp_runs():
+    """samp.runs reads samp.eval.metrics, never the other way round."""
+    import subprocess
+    import sys
+
+    code = "import sys, samp.eval.metrics; print(sorted(m for m in sys.modules if m.startswith('samp.runs')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]", f"expected no samp.runs module imported by samp.eval.metrics, got {out}"

@@ -16,7 +16,7 @@ import pytest
 
 COMMON = ["datamodule.n_e=16", "trainer.max_steps=50", "trainer.max_epochs=-1", "trainer.log_every_n_steps=2",
           "trainer.enable_progress_bar=false", "datamodule.batch_size=16", "datamodule.noise=0",
-          "datamodule.val_samples=32", "system.eval_problems=1", "system.lr=1e-3"]
+          "datamodule.val_samples=32", "evaluation.problems=1", "system.optimizer.lr=1e-3"]
 SMALL = {"mpinet": ["model.robot_points=48", "model.obstacle_points=64", "model.target_points=16",
                     "model.levels=[{centres:32,radius:0.15,neighbours:8,widths:[16,32]}]", "model.global_widths=[32,64]",
                     "model.config_hidden=[16]", "model.decoder_hidden=[64]"],

@@ -22,9 +22,7 @@ def dm(tiny_datamodule):
 
 def _system(dm, **kw) -> MPiNetSystem:
     system = MPiNetSystem(robot="panda", model=SMALL, **kw)
-    system.hparams.n_e, system.hparams.bounds, system.hparams.dataset_id = dm.n_e, dm.bounds, dm.dataset_id
-    system.grids = dm.grids
-    system._fit_data(dm)
+    system.bind(dm.binding)
     return system
 
 
@@ -66,7 +64,7 @@ def test_hinge_collision_loss_matches_hand_computed_values():
 
 def test_losses_combine_with_mpinet_weights_and_fall_on_a_small_set(dm):
     torch.manual_seed(0)
-    system = _system(dm, lr=1e-3).train()
+    system = _system(dm).train()
     batch = dm.train_samples[torch.arange(16)]
     losses = system._losses(batch)
     assert set(losses) == {"match", "coll", "loss"}

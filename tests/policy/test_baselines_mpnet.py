@@ -22,9 +22,7 @@ def dm(tiny_datamodule):
 
 def _system(dm, **kw) -> MPNetSystem:
     system = MPNetSystem(robot="panda", model=SMALL, **kw)
-    system.hparams.n_e, system.hparams.bounds, system.hparams.dataset_id = dm.n_e, dm.bounds, dm.dataset_id
-    system.grids = dm.grids
-    system._fit_data(dm)
+    system.bind(dm.binding)
     return system
 
 

@@ -49,3 +49,54 @@ def test_collision_loss_gradient_pushes_points_out():
     pts = torch.tensor([[[0.27, 0.0, 0.5]]], requires_grad=True)  # left of the box, within the margin
     collision_loss(pts, grid[None], torch.tensor([0]), BOUNDS, torch.zeros(1, 1), LossConfig()).backward()
     assert pts.grad[0, 0, 0] > 0  # descending the gradient moves the point in -x, away from the box
+
+
+def _step(robot_sdf_calls: list) -> "StepPrediction":
+    from samp.policy.losses import StepPrediction
+
+    z = torch.linspace(0.0, 1.0, 5)
+    grid = (z - 0.5).expand(5, 5, 5).clone()[None]  # sdf = z - 0.5, exact under trilinear interpolation
+    pred = torch.tensor([[[0.0, 0.0, 0.55], [0.0, 0.0, 0.5]]])  # sdf 0.05 and 0
+    true = pred + torch.tensor([0.1, 0.0, 0.0])
+
+    def robot_sdf():
+        robot_sdf_calls.append(1)
+        return torch.full((1, 2), 0.015)  # d_target: weight exp(0) = 1
+
+    return StepPrediction(torch.tensor([[0.0, 1.0]]), torch.tensor([[0.5, 1.0]]), pred, true, grid,
+                          torch.zeros(1, dtype=torch.long), ((-1.0, -1.0, 0.0), (1.0, 1.0, 1.0)), robot_sdf)
+
+
+def test_loss_terms_weigh_each_term_by_its_config_field():
+    import pytest
+
+    from samp.policy.losses import loss_terms
+
+    calls = []
+    out = loss_terms(_step(calls), LossConfig(match=2.0, collision=10.0, config=3.0, d_margin=0.09))
+    match = 0.1 / 3 + 0.01 / 3  # |dx| = 0.1 in one of three coordinates, at both points
+    coll = ((0.09 - 0.05) + (0.09 - 0.0)) / 2
+    config = 0.25
+    assert math.isclose(out["match"], match, rel_tol=1e-5) and math.isclose(out["coll"], coll, rel_tol=1e-5)
+    assert math.isclose(out["config"], config, rel_tol=1e-6)
+    assert math.isclose(out["loss"], 2.0 * match + 10.0 * coll + 3.0 * config, rel_tol=1e-5)
+    assert calls == [1], "the robot SDF is queried once, when the collision term needs it"
+    calls.clear()
+    off = loss_terms(_step(calls), LossConfig(match=2.0, collision=10.0, config=3.0), off=("coll",))
+    assert float(off["coll"]) == 0.0 and calls == [] and math.isclose(off["loss"], 2.0 * match + 3.0 * config, rel_tol=1e-5)
+    with pytest.raises(ValueError, match=r"unknown loss term\(s\) \['colision'\]"):
+        loss_terms(_step(calls), LossConfig(), off=("colision",))
+
+
+def test_a_new_loss_term_is_one_entry(monkeypatch):
+    """What adding a term takes: one LossTerm in LOSS_TERMS (and its weight field in LossConfig)."""
+    import dataclasses
+
+    import samp.policy.losses as losses
+
+    Config = dataclasses.make_dataclass("Config", [("smooth", float, 0.5)], bases=(LossConfig,))
+    term = losses.LossTerm("smooth", "smooth", lambda s, c: (s.q_hat - s.q_next).abs().sum())
+    monkeypatch.setattr(losses, "LOSS_TERMS", (*losses.LOSS_TERMS, term))
+    out = losses.loss_terms(_step([]), Config())
+    assert math.isclose(out["smooth"], 0.5) and math.isclose(out["loss"] - out["match"] - 20 * out["coll"]
+                                                               - out["config"], 0.25, rel_tol=1e-5)

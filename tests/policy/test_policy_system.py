@@ -41,8 +41,7 @@ def setup(tmp_path_factory, robots):
 def _system(setup, **kw) -> PolicySystem:
     dm, payload = setup
     system = PolicySystem(robot="panda", robot_sdf_payload=payload, **{"model": SMALL_NET, **kw})
-    system.grids, system.hparams.bounds, system.hparams.n_e = dm.grids, dm.bounds, dm.n_e
-    system.hparams.dataset_id = dm.dataset_id
+    system.bind(dm.binding)
     return system
 
 
@@ -64,7 +63,7 @@ def test_output_shapes_and_limits(setup, batch):
 def test_two_hundred_steps_drive_the_loss_down_tenfold(setup):
     dm, _ = setup
     torch.manual_seed(0)
-    system = _system(setup, lr=1e-3, collision_loss=False).train()
+    system = _system(setup, collision_loss=False).train()
     batch = dm.train_samples[torch.arange(64)]
     opt = torch.optim.Adam(system.net.parameters(), lr=1e-3)
     first = None
@@ -101,9 +100,47 @@ def test_checkpoint_reloads_to_identical_outputs(setup, tmp_path):
     b = dm.train_samples[torch.arange(5)]
     with torch.no_grad():
         want = system.predict(b["q"], b["q_goal"], system.encode(dm.grids), b["scene"], dm.bounds)
-        got = again.predict(b["q"], b["q_goal"], again.encode(dm.grids), b["scene"], again.hparams.bounds)
+        got = again.predict(b["q"], b["q_goal"], again.encode(dm.grids), b["scene"], again.bounds)
     assert torch.equal(want, got)
-    assert again.hparams.n_e == 16 and again.hparams.dataset_id == dm.dataset_id
+    assert again.binding == dm.binding and again.binding.meta()["n_e"] == 16  # what it was trained on, without grids
+    assert again.grids is None and "grids" not in again.state_dict()  # the dataset's grids are not saved
+    assert again.kind == "samp" and not {"n_e", "bounds", "dataset_id"} & set(again.hparams)
+
+
+def test_fit_does_not_rewrite_the_hyperparameters(setup):
+    import pytorch_lightning as pl
+
+    dm, _ = setup
+    system = PolicySystem(robot="panda", robot_sdf_payload=setup[1], model=SMALL_NET)
+    before = dict(system.hparams)
+    trainer = pl.Trainer(max_steps=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                         enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
+    trainer.fit(system, datamodule=dm)
+    assert dict(system.hparams) == before
+    assert system.binding.dataset_id == dm.dataset_id and system.grids.shape == dm.grids.shape
+
+
+def test_a_dataset_of_another_robot_is_refused_at_bind(setup):
+    from dataclasses import replace
+
+    dm, payload = setup
+    system = PolicySystem(robot="panda", robot_sdf_payload=payload, model=SMALL_NET)
+    with pytest.raises(ValueError, match="is for robot 'iiwa'"):
+        system.bind(replace(dm.binding, robot="iiwa"))
+    with pytest.raises(ValueError, match="never fitted"):
+        system.planner()
+
+
+def test_the_optimizer_and_scheduler_come_from_config(setup):
+    sgd = {"_target_": "torch.optim.SGD", "_partial_": True, "lr": 0.5}
+    step = {"_target_": "torch.optim.lr_scheduler.StepLR", "_partial_": True, "step_size": 3}
+    system = _system(setup, optimizer=sgd, scheduler=step)
+    out = system.configure_optimizers()
+    assert isinstance(out["optimizer"], torch.optim.SGD) and out["optimizer"].defaults["lr"] == 0.5
+    assert isinstance(out["lr_scheduler"]["scheduler"], torch.optim.lr_scheduler.StepLR)
+    assert isinstance(_system(setup, optimizer=sgd, scheduler={}).configure_optimizers(), torch.optim.SGD)
+    with pytest.raises(ValueError, match="optimizer must be a config node with a _target_"):
+        _system(setup, optimizer={"lr": 1.0})
 
 
 def test_robot_sdf_for_another_robot_is_refused(setup):
@@ -114,8 +151,12 @@ def test_robot_sdf_for_another_robot_is_refused(setup):
 
 
 def test_missing_robot_sdf_says_how_to_build_it(tmp_path):
-    with pytest.raises(FileNotFoundError, match=r"python -m samp.train \+experiment=robot_sdf_panda"):
-        PolicySystem(robot="panda", robot_sdf="robot_sdf_panda", runs_dir=str(tmp_path))
+    with pytest.raises(FileNotFoundError, match=r"no robot SDF at .*build_missing.robot_sdf=true"):
+        PolicySystem(robot="panda", robot_sdf=str(tmp_path / "nowhere"))
+    from samp.train.prerequisites import resolve_robot_sdf
+
+    with pytest.raises(FileNotFoundError, match=r"python -m samp.train experiment=robot_sdf_panda"):
+        resolve_robot_sdf("robot_sdf_panda", tmp_path)
 
 
 def test_a_non_finite_loss_stops_training_with_a_message(setup):
@@ -125,5 +166,5 @@ def test_a_non_finite_loss_stops_training_with_a_message(setup):
     system = _system(setup).train()
     with torch.no_grad():
         system.net.fusion[-1].bias.fill_(float("nan"))  # a diverged network
-    with pytest.raises(NonFiniteLossError, match=r"policy training loss is nan at epoch 0, step 0 \(match nan.*checkpoints/"):
+    with pytest.raises(NonFiniteLossError, match=r"samp training loss is nan at epoch 0, step 0 \(match nan.*checkpoints/"):
         system.training_step(dm.train_samples[torch.arange(8)], 0)

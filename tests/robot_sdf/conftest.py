@@ -50,7 +50,7 @@ def train_hash_sdf(samples, steps: int, seed: int = 0):
 @pytest.fixture(scope="session")
 def trained_sdf(panda, panda_samples):
     """A whole-robot `RobotSDF` from a hash grid trained for a few seconds on the tiny samples."""
-    from samp.robot_sdf.query import RobotSDF
+    from samp.robot_sdf.whole_robot import RobotSDF
 
     _, samples = panda_samples
     net, _ = train_hash_sdf(samples, steps=800)

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.robot_sdf.evaluate import (EvalConfig, error_metrics, evaluate_methods, heldout_link_set, robot_signed_distance,
-                                     _link_poses)
+from samp.robot_sdf.evaluate import (SDFEvalConfig, _link_poses, error_metrics, evaluate_methods, heldout_link_set,
+                                     robot_signed_distance)
 from samp.robot_sdf.samples import link_signed_distance
 
 RERUN = Path(sys.executable).parent / "rerun"
@@ -41,12 +41,12 @@ def test_robot_ground_truth_is_the_min_over_links(panda):
 
 def test_heldout_sets_are_fixed_by_the_seed(panda, panda_samples, tmp_path, monkeypatch):
     _, s = panda_samples
-    cfg = EvalConfig(link_points=100, configs=2, robot_points=50)
+    cfg = SDFEvalConfig(link_points=100, configs=2, robot_points=50)
     a = heldout_link_set(panda, s.centres, s.scales, cfg)
     monkeypatch.setenv("SAMP_CACHE_DIR", str(tmp_path))  # recomputed, not read from the cache
     b = heldout_link_set(panda, s.centres, s.scales, cfg)
     np.testing.assert_array_equal(a["points"], b["points"])
-    c = heldout_link_set(panda, s.centres, s.scales, EvalConfig(link_points=100, configs=2, robot_points=50, seed=1))
+    c = heldout_link_set(panda, s.centres, s.scales, SDFEvalConfig(link_points=100, configs=2, robot_points=50, seed=1))
     assert not np.array_equal(a["points"], c["points"])
     near = np.abs(a["sdf"]) < 0.05
     assert 0.5 < near.mean() < 1.0 and (a["link"] == 0).sum() == 100
@@ -54,12 +54,12 @@ def test_heldout_sets_are_fixed_by_the_seed(panda, panda_samples, tmp_path, monk
 
 def test_evaluate_methods_writes_the_table_and_a_valid_recording(panda, panda_samples, tmp_path):
     from samp.robot_sdf.baselines import fit_bernstein
-    from samp.robot_sdf.query import RobotSDF
+    from samp.robot_sdf.whole_robot import RobotSDF
 
     _, s = panda_samples
     net, _ = fit_bernstein(s, 8)
     model = RobotSDF(panda, net, s.centres, s.scales, method=net.label)
-    cfg = EvalConfig(link_points=200, configs=2, robot_points=200, timing_batches=[1], recording_spacing=0.03)
+    cfg = SDFEvalConfig(link_points=200, configs=2, robot_points=200, timing_batches=[1], recording_spacing=0.03)
     report = evaluate_methods(panda, {net.label: {"model": model, "train_time_s": 1.5}}, cfg, tmp_path)
     res = report["methods"]["RDF (N=8)"]
     assert res["whole_robot"]["mae_all_mm"] < 5 and res["per_link"]["mae_near_mm"] < 5, res

@@ -87,10 +87,10 @@ def test_whole_robot_query_is_the_min_over_links_and_culling_changes_nothing(pan
 
 
 def test_whole_robot_query_matches_trimesh(panda, trained_sdf):
-    from samp.robot_sdf.evaluate import EvalConfig, _link_poses, heldout_robot_set
+    from samp.robot_sdf.evaluate import SDFEvalConfig, _link_poses, heldout_robot_set
 
     centres, scales = trained_sdf.centres.double().numpy(), trained_sdf.scales.double().numpy()
-    data = heldout_robot_set(panda, centres, scales, EvalConfig(configs=2, robot_points=1000))
+    data = heldout_robot_set(panda, centres, scales, SDFEvalConfig(configs=2, robot_points=1000))
     for q, points, truth in zip(data["q"], data["points"], data["sdf"]):
         with torch.no_grad():
             pred = trained_sdf.query(torch.as_tensor(points[None], dtype=torch.float32),
@@ -107,7 +107,7 @@ def test_gradients_with_respect_to_points(panda, trained_sdf):
     import copy
 
     from samp.robot import load_robot
-    from samp.robot_sdf.query import RobotSDF
+    from samp.robot_sdf.whole_robot import RobotSDF
 
     sdf64 = RobotSDF(load_robot("panda", dtype=torch.float64), copy.deepcopy(trained_sdf.net).double(),
                      trained_sdf.centres, trained_sdf.scales)

@@ -120,6 +120,6 @@ def test_ddp_trainer_and_sweep_configs_compose():
                           ("loss_ablation", ["samp_n100", "samp_no_coll_loss", "samp_no_pointnet"]),
                           ("paper_table_1", ["samp_n100", "samp_n160", "mpnet", "mpinet"])):
         params = OmegaConf.load(conf_dir() / "sweep" / f"{name}.yaml").hydra.sweeper.params
-        assert params["+experiment"].split(",") == members
+        assert params["experiment"].split(",") == members
         for experiment in members:  # every member composes
             compose_train_config([f"+experiment={experiment}"])

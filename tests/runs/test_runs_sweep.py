@@ -8,7 +8,8 @@ import shutil
 
 import pytest
 
-MEMBERS = ("+experiment=robot_sdf_panda,seed=0", "+experiment=robot_sdf_panda,seed=1")
+# Typed `+experiment=` below, the experiment is named without the `+` (conf/train.yaml's defaults list has it).
+MEMBERS = ("experiment=robot_sdf_panda,seed=0", "experiment=robot_sdf_panda,seed=1")
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import pytest
 
 from samp.scene import anchor_points, generate_scene
 from samp.viz import anchor_stride, nearest_anchor_index, slice_quad, slice_values, zero_contour
-from samp.viz.scene import QUAD_TRIANGLES
+from samp.scene.viz import QUAD_TRIANGLES
 
 RERUN = Path(sys.executable).parent / "rerun"
 BOUNDS = ((-1.0, -0.5, 0.05), (1.0, 0.7, 1.25))  # unequal spacings, so a swapped axis shows

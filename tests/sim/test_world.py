@@ -12,10 +12,10 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from samp.robot.bodies import MESH_MARGIN
 from samp.scene import Box, Cylinder, MeshObstacle, Pose, Scene, Sphere
 from samp.scene.sdf import obstacle_parts
 from samp.sim import World
-from samp.sim.bodies import MESH_MARGIN
 
 N_CONFIGS = 500
 COVER = 0.003  # m, every point of a link surface lies this close to an oracle sample

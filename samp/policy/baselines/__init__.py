@@ -1,13 +1,15 @@
-"""Baseline neural planners trained and evaluated in SAMP's harness (issue 9, the paper's Table I):
+"""Baseline neural planners trained and evaluated in SAMP's harness (the paper's Table I):
 
-* MPiNet-style policy (`MPiNetSystem`, `+experiment=mpinet`): PointNet++ over a labelled point cloud,
+* MPiNet-style policy (`MPiNetSystem`, `experiment=mpinet`): PointNet++ over a labelled point cloud,
   joint steps, point-match plus hinge collision loss; rolled out as a step policy like SAMP.
-* MPNet-style planner (`MPNetSystem`, `+experiment=mpnet`): obstacle encoder plus dropout MLP, planning
+* MPNet-style planner (`MPNetSystem`, `experiment=mpnet`): obstacle encoder plus dropout MLP, planning
   by bidirectional rollout, lazy contraction and neural replanning; evaluated as a trajectory planner
   like the expert.
 
-`load_policy(checkpoint)` (samp.policy) hands a baseline checkpoint to `planner_from_checkpoint`, so
-`samp.eval.load_planner(run_dir)` and `python -m samp.eval run=RUN_DIR` work for these runs unchanged.
+Both derive from `samp.policy.base.PolicySystemBase`, which registers their kind, so
+`samp.policy.load_policy(checkpoint)` and `python -m samp.eval run=RUN_DIR` load them like SAMP. A new
+baseline is a network module here, a `<name>_system.py` module with its system class (found by
+`samp.policy.registry` without being listed), and an experiment config.
 """
 
 from __future__ import annotations
@@ -32,17 +34,7 @@ def __getattr__(name: str):
 
 
 def planner_from_checkpoint(checkpoint: str | Path | dict, **options):
-    """A baseline checkpoint (path or loaded dict) -> its planner: an MPiNet `StepPolicy` or an MPNet
-    `TrajectoryPlanner` (`options`: planning settings for MPNet, see `MPNetPlanConfig`)."""
-    import torch
+    """A baseline checkpoint (path or loaded dict) -> its planner (`samp.policy.load_policy`)."""
+    from samp.policy.registry import load_policy
 
-    from samp.policy.baselines.mpinet_system import MPiNetSystem
-    from samp.policy.baselines.mpnet_system import MPNetSystem
-
-    ckpt = checkpoint if isinstance(checkpoint, dict) else torch.load(checkpoint, map_location="cpu", weights_only=False)
-    kind = (ckpt.get("baseline") or {}).get("kind")
-    systems = {"mpinet": MPiNetSystem, "mpnet": MPNetSystem}
-    if kind not in systems:
-        raise ValueError(f"{checkpoint if not isinstance(checkpoint, dict) else 'the checkpoint'} is not a baseline "
-                         f"checkpoint (kind {kind!r}; expected one of {sorted(systems)})")
-    return systems[kind].from_checkpoint(ckpt).planner(**options)
+    return load_policy(checkpoint, **options)

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import torch
 
-from samp.policy.baselines.common import BaselineSystem, check_env
 from samp.policy.baselines.mpinet import MPiNetConfig, MPiNetNet, even_subset, labelled_cloud, surface_points
+from samp.names import BATCH_GOAL, BATCH_NEXT, BATCH_Q, BATCH_SCENE
+from samp.policy.base import PolicySystemBase
 from samp.policy.losses import match_loss
 from samp.policy.network import denormalize, normalize, sample_by_scene
 
@@ -34,24 +35,18 @@ def scene_obstacle_points(grids: torch.Tensor, bounds, count: int, seed: int) ->
     return torch.stack([surface_points(g, bounds, count, seed) for g in grids])
 
 
-class MPiNetSystem(BaselineSystem):
+class MPiNetSystem(PolicySystemBase, kind="mpinet"):
     """Args:
         robot: robot name (conf/robot/). model: MPiNetConfig fields (dof comes from the robot).
         match_weight, collision_weight: loss weights (MPiNet: 1 and 5). margin: hinge margin (metres).
-        lr, weight_decay: AdamW. restart_epochs, restart_mult: CosineAnnealingWarmRestarts T_0, T_mult.
-        eval_problems: problems per split for the evaluation after training (0: none).
-        n_e, bounds, dataset_id: filled in from the DataModule at fit time and saved with the weights.
+        optimizer, scheduler: `_partial_` config nodes (conf/optimizer/), see `PolicySystemBase`.
     """
 
-    kind = "mpinet"
-
     def __init__(self, robot: str = "panda", model: dict | None = None, match_weight: float = 1.0,
-                 collision_weight: float = 5.0, margin: float = 0.03, lr: float = 1e-4, weight_decay: float = 1e-2,
-                 restart_epochs: int = 10, restart_mult: int = 2, eval_problems: int = 50, n_e: int | None = None,
-                 bounds=None, dataset_id: str | None = None):
-        super().__init__()
+                 collision_weight: float = 5.0, margin: float = 0.03, optimizer: dict | None = None,
+                 scheduler: dict | None = None):
+        super().__init__(robot, optimizer, scheduler)
         self.save_hyperparameters()
-        self._init_robot(robot)
         self.net_cfg = MPiNetConfig(**{**(model or {}), "dof": self.robot.dof})
         self.net = MPiNetNet(self.net_cfg)
         shells = self.robot.point_shells
@@ -61,8 +56,8 @@ class MPiNetSystem(BaselineSystem):
         self.register_buffer("target_index", even_subset(inner, self.net_cfg.target_points), persistent=False)
         self.obstacles = None
 
-    def _fit_data(self, dm) -> None:
-        self.obstacles = self.obstacle_points(self.grids, self.hparams.bounds)
+    def _bound(self, binding) -> None:
+        self.obstacles = self.obstacle_points(self.grids, self.bounds)
 
     def obstacle_points(self, grids: torch.Tensor, bounds) -> torch.Tensor:
         """(S, n, n, n) -> (S, N_o, 3) the obstacle part of each scene's cloud."""
@@ -78,13 +73,13 @@ class MPiNetSystem(BaselineSystem):
         return denormalize(self.net(normalize(q, self.limits), xyz, labels), self.limits)
 
     def _losses(self, batch: dict) -> dict[str, torch.Tensor]:
-        q, q_next, scene = batch["q"], batch["q_next"], batch["scene"]
-        q_hat = self.predict(q, batch["q_goal"], self.obstacles[scene])
+        q, q_next, scene = batch[BATCH_Q], batch[BATCH_NEXT], batch[BATCH_SCENE]
+        q_hat = self.predict(q, batch[BATCH_GOAL], self.obstacles[scene])
         pred = self.robot.transform_points(q_hat)  # (B, M, 3)
         with torch.no_grad():
             true = self.robot.transform_points(q_next)
         out = {"match": match_loss(pred, true),
-               "coll": hinge_collision_loss(pred[:, self.surface_index], self.grids, scene, self.hparams.bounds,
+               "coll": hinge_collision_loss(pred[:, self.surface_index], self.grids, scene, self.bounds,
                                             self.hparams.margin)}
         out["loss"] = self.hparams.match_weight * out["match"] + self.hparams.collision_weight * out["coll"]
         return out
@@ -96,19 +91,19 @@ class MPiNetSystem(BaselineSystem):
 
 
 class MPiNetStepPolicy:
-    """A trained `MPiNetSystem` as a `samp.eval.StepPolicy`: `reset` turns the batch's grids into obstacle
+    """A trained `MPiNetSystem` as a `StepPolicy` (samp.policy.interface): `reset` turns the batch's grids into obstacle
     points once (timed, like SAMP's grid encoding), `step` predicts q_{t+1}."""
 
     def __init__(self, system: MPiNetSystem, name: str = "mpinet"):
         system.fitted()
-        self.system, self.robot, self.name, self.n_e = system, system.robot, name, system.hparams.n_e
+        self.system, self.robot, self.name, self.n_e = system, system.robot, name, system.n_e
         self._obstacles = None
 
     def reset(self, env) -> None:
-        check_env(self.system, env)
+        self.system.check_env(env)
         with torch.no_grad():
             self._obstacles = self.system.obstacle_points(env.grids.to(self.system.device, torch.float32),
-                                                          self.system.hparams.bounds)
+                                                          self.system.bounds)
 
     def step(self, q: torch.Tensor, q_goal: torch.Tensor, env) -> torch.Tensor:
         if self._obstacles is None:

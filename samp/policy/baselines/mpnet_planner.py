@@ -1,5 +1,5 @@
 """MPNet-style planning with a trained `MPNetSystem` (after Qureshi et al., T-RO 2020, Algorithms 1-4),
-as a `samp.eval.TrajectoryPlanner`: `plan(problem) -> PlannedTrajectory`.
+as a `TrajectoryPlanner` (samp.policy.interface): `plan(problem) -> PlannedTrajectory`.
 
   1. Bidirectional rollout: two chains grow from the start and from the goal, one network step at a
      time and alternating, each toward the other chain's last state, until the straight segment between
@@ -84,12 +84,12 @@ class MPNetPlanner:
     `close()` releases them. `outcomes` counts how problems ended (neural, fallback, failed)."""
 
     def __init__(self, system, cfg: MPNetPlanConfig | None = None, name: str = "mpnet"):
-        from samp.eval.checks import exact_robot
+        from samp.robot.precision import exact_robot
 
         system.fitted()
         self.system, self.cfg, self.name = system.eval(), cfg or MPNetPlanConfig(), name
         set_dropout(system.net, self.cfg.dropout)
-        self.robot, self.n_e = system.robot, system.hparams.n_e
+        self.robot, self.n_e = system.robot, system.n_e
         self._exact = exact_robot(system.robot)  # float64 limits for the World (and the OMPL fallback)
         self._lo, self._hi = self._exact.joint_limits.numpy().T
         self._worlds: dict[str, object] = {}
@@ -191,9 +191,9 @@ class MPNetPlanner:
     # ------------------------------------------------------------------ the planner protocol
     def plan(self, problem):
         """problem: a `samp.eval.Problem` -> `PlannedTrajectory` ((W, n) radians or None, seconds, reason)."""
-        from samp.eval.planners import PlannedTrajectory
+        from samp.policy.interface import PlannedTrajectory
 
-        bounds = [list(map(float, b)) for b in self.system.hparams.bounds]
+        bounds = [list(map(float, b)) for b in self.system.bounds]
         if [list(b) for b in problem.scene.bounds] != bounds:
             raise ValueError(f"the mpnet planner was trained on workspace bounds {bounds}; scene "
                              f"{problem.scene.name!r} has {problem.scene.bounds}")

@@ -1,4 +1,5 @@
-"""The robot's collision links as pybullet bodies built from samp's convex parts.
+"""The robot's collision links as pybullet bodies built from samp's convex parts: the robot's own
+bodies for self-collision checks, and the robot side of `samp.sim.World`.
 
 pybullet's own URDF loader keeps only part of some multi-object OBJ files (for the xArm's V-HACD meshes
 it collided with one body of each link in a check against trimesh), so collision queries use bodies

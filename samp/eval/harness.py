@@ -1,6 +1,6 @@
 """`evaluate(planner, problems)`: roll out or replay, check in pybullet, and compute the metrics per split.
 
-Step policies are rolled out in batches (`samp.eval.engine`); trajectory planners (the expert) answer
+Step policies are rolled out in batches (`samp.eval.rollouts`); trajectory planners (the expert) answer
 each problem; both trajectories then go through the same checks (`samp.eval.checks`) and the same
 metric code (`samp.eval.metrics`), so the policy and the expert are compared on equal terms.
 """
@@ -13,7 +13,7 @@ import numpy as np
 
 from samp.eval.checks import TrajectoryChecker, ee_poses, exact_robot, goal_errors, polyline_length
 from samp.eval.config import RolloutConfig, rollout_config
-from samp.eval.engine import RolloutResult, rollout
+from samp.eval.rollouts import RolloutResult, rollout
 from samp.eval.metrics import reached_within, summarize
 from samp.eval.names import ALL_SPLITS
 from samp.eval.planners import StepPolicy, TrajectoryPlanner

@@ -1,0 +1,45 @@
+"""Names defined once (STYLE 8): run-folder files, checkpoint records, batch keys, logged-metric prefixes,
+scene splits. Everything that writes or reads one of these imports it from here; this module imports
+nothing of samp, so every layer may use it."""
+
+from __future__ import annotations
+
+__all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "BATCH_START", "BATCH_STEP", "BATCH_STEP_CLEAN", "BATCH_TRAJ", "BEST_CKPT",
+           "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE", "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX",
+           "LAST_CHECKPOINT", "METRICS_CSV", "METRICS_JSON", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL",
+           "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SUMMARY_PNG", "TRAIN_PREFIX", "VAL_PREFIX"]
+
+# ---------------------------------------------------------------- a run folder (DESIGN section 6)
+RUN_JSON = "run.json"
+METRICS_CSV = "metrics.csv"
+CONFIG_DIR = ".hydra"
+CHECKPOINTS_DIR = "checkpoints"
+LAST_CHECKPOINT = "last.ckpt"
+BEST_CKPT = "best.ckpt"  # written by EvalCallback when the rollout success rate improves
+CHECKPOINT_PREFERENCE = (BEST_CKPT, LAST_CHECKPOINT)  # what an evaluation of a run loads
+EVAL_DIR = "eval"  # the evaluation's files under a run folder
+METRICS_JSON = "metrics.json"
+METRICS_MD = "metrics.md"
+PROBLEMS_JSONL = "problems.jsonl"  # one per-problem record per line
+RECORDING_RRD = "recording.rrd"
+RECONSTRUCTION_RRD = "reconstruction.rrd"  # grid_source=reconstructed: clouds, reconstructed and exact slices
+PLOTS_DIR = "plots"
+SUMMARY_PNG = "summary.png"  # losses and rates of a run, written after training
+
+# ---------------------------------------------------------------- checkpoints
+CHECKPOINT_RECORD = "samp"  # {"kind": ..., ...}: what a policy checkpoint holds (samp.policy.registry)
+
+# ---------------------------------------------------------------- a training batch of policy steps (samp.data.module)
+BATCH_Q = "q"  # (B, n) q_t, radians (with noise during training)
+BATCH_NEXT = "q_next"  # (B, n) q_{t+1}
+BATCH_GOAL = "q_goal"  # (B, n) the trajectory's last waypoint
+BATCH_SCENE = "scene"  # (B,) long, the scene index into the bound grids
+BATCH_START = "q_start"  # (B, n) the trajectory's first waypoint
+BATCH_STEP_CLEAN = "q_clean"  # (B, n) q_t without the training noise
+BATCH_TRAJ = "traj"  # (B,) long, the trajectory index
+BATCH_STEP = "step"  # (B,) long, t
+
+# ---------------------------------------------------------------- logged metrics and splits
+TRAIN_PREFIX, VAL_PREFIX, EVAL_PREFIX = "train/", "val/", "eval/"
+SPLITS = ("train", "heldout")  # scene splits of a dataset
+ALL_SPLITS = "all"  # the pooled metrics over every problem evaluated

@@ -1,0 +1,85 @@
+"""What the recipe does with a model once it is trained, in memory (no reload from disk, no second config):
+
+* a policy (`PolicySystemBase`): roll it out on `evaluation.problems` problems per split of its own
+  dataset, beside the expert and the straight line, into `<run>/eval/` (the same files and format as
+  `python -m samp.eval run=RUN`), then a summary plot `<run>/plots/summary.png`;
+* a robot SDF (`RobotSDFSystem`): export `robot_sdf.pt` and, with a `robot_sdf_eval` config, the
+  Table III evaluation files.
+
+Each returns flat metrics for run.json and the loggers. Adding a kind of model means one function here
+and one line in `after_fit`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["after_fit", "evaluate_policy", "export_robot_sdf"]
+
+
+def _flat(report: dict, name: str) -> dict[str, float]:
+    """`eval/<planner>/<split>/<metric>` for the metrics the registry flattens into run.json."""
+    from samp.eval.metrics import flat_metrics
+    from samp.names import EVAL_PREFIX
+
+    return {f"{EVAL_PREFIX}{planner}/{split}/{metric}": float(m[metric])
+            for planner, key in ((name, "metrics"), ("expert", "expert"), ("straight", "straight"))
+            for split, m in (report.get(key) or {}).items() for metric in flat_metrics() if m.get(metric) is not None}
+
+
+def evaluate_policy(system, datamodule, run_dir: Path, problems: int) -> dict:
+    """The trained policy `system` on `problems` problems per split of `datamodule`'s dataset, with the
+    expert and the straight line beside it; writes `<run_dir>/eval/` and the summary plot."""
+    from samp.eval.config import load_eval_config
+    from samp.eval.report import evaluate_on_dataset
+    from samp.names import EVAL_DIR, PLOTS_DIR, SUMMARY_PNG
+
+    if not problems:
+        return {}
+    cfg = load_eval_config({"problems": int(problems), "compare_straight": True, "overwrite": True})
+    out = Path(run_dir) / EVAL_DIR
+    out.mkdir(parents=True, exist_ok=True)
+    system.eval()
+    report = evaluate_on_dataset(system.planner(), datamodule.ds, cfg, out, Path(run_dir))
+    try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
+        from samp.runs.plots import plot_run_summary
+        from samp.runs.registry import load_run
+
+        print(f"plot: {plot_run_summary(load_run(run_dir), Path(run_dir) / PLOTS_DIR / SUMMARY_PNG)}", flush=True)
+    except Exception as err:  # noqa: BLE001 - reported, not raised
+        print(f"warning: the summary plot was not written ({type(err).__name__}: {err})", flush=True)
+    return _flat(report, system.kind)
+
+
+def export_robot_sdf(system, run_dir: Path, evaluation: dict | None) -> dict:
+    """Write `robot_sdf.pt` and (unless `evaluation` is None) the Table III files of the trained network."""
+    from samp.robot_sdf.artifact import ARTIFACT_FILE, artifact_id, save_artifact
+    from samp.robot_sdf.evaluate import SDFEvalConfig, evaluate_methods
+
+    model = system.robot_sdf().eval()
+    path = save_artifact(Path(run_dir) / ARTIFACT_FILE, model, system.spec, system.dataset_id,
+                         {"train_time_s": system.train_time_s})
+    metrics = {"robot_sdf_artifact_id": artifact_id(path), "train_time_s": system.train_time_s}
+    if evaluation is not None:
+        report = evaluate_methods(model.robot, {system.method: {"model": model, "train_time_s": system.train_time_s}},
+                                  SDFEvalConfig(**evaluation), run_dir)
+        res = report["methods"][system.method]
+        for key in ("whole_robot", "per_link"):
+            metrics.update({f"eval/{key}/{k}": v for k, v in res[key].items() if not k.startswith("count")})
+        metrics.update({f"eval/infer_ms_B{b}": v for b, v in res["infer_ms"].items()})
+    return metrics
+
+
+def after_fit(cfg, system, datamodule, run_dir: Path) -> dict:
+    """The step after `trainer.fit` for whatever `system` is; flat metrics (empty for other systems)."""
+    from omegaconf import OmegaConf
+
+    from samp.policy.base import PolicySystemBase
+    from samp.robot_sdf.system import RobotSDFSystem
+
+    if isinstance(system, PolicySystemBase):
+        return evaluate_policy(system, datamodule, run_dir, cfg.evaluation.problems)
+    if isinstance(system, RobotSDFSystem):
+        evaluation = cfg.get("robot_sdf_eval")
+        return export_robot_sdf(system, run_dir, None if evaluation is None else OmegaConf.to_container(evaluation))
+    return {}

@@ -1,0 +1,124 @@
+"""`eval` suite: rollouts per second of the batched engine (--problems problems over two scenes, grids at --n-e,
+the straight-line policy, or --policy-run RUN_DIR's trained policy at its own n_e) and of a full evaluation with
+pybullet checks; baseline: one problem at a time. The policy's per-problem solution time against the expert's
+planning time on --expert-problems of them.
+
+Adds --problems (also read by the perception suite), --n-e (also read by the baselines suite), --expert-problems
+and --policy-run."""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from typing import Callable
+
+import torch
+
+from .common import HEADER, bench_problems, bench_scenes
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--problems", type=int, default=100, help="eval: problems rolled out (over two scenes)")
+    ap.add_argument("--n-e", type=int, default=100, help="eval: anchors per axis of the grids handed to the policy")
+    ap.add_argument("--expert-problems", type=int, default=10, help="eval: problems the expert plans afresh")
+    ap.add_argument("--policy-run", help="eval: a trained policy's run folder (default: the straight-line policy)")
+
+
+def _load_policy(args, device: torch.device):
+    """A trained policy (its own n_e, which replaces --n-e in `args`), else the straight line at --n-e."""
+    from samp.eval import StraightLinePolicy
+    from samp.robot import load_robot
+
+    if args.policy_run:
+        from samp.eval import load_planner
+
+        policy = load_planner(args.policy_run)
+        if hasattr(policy, "system"):
+            policy.system.to(device)
+        args.n_e = policy.n_e
+        return policy
+    return StraightLinePolicy(load_robot(args.robot, dtype=torch.float32).to(device), n_e=args.n_e)
+
+
+def _median_time(fn: Callable, repeats: int) -> tuple[float, object]:
+    """(median seconds, last result) over `repeats` calls: the machine may be shared."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def _expert_times(exact, scenes: list, subset: list) -> list[float]:
+    """The expert's planning time for each problem of `subset`, one planner per scene."""
+    from samp.expert import ExpertPlanner
+
+    expert_times = []
+    for scn in scenes:
+        mine = [p for p in subset if p.scene is scn]
+        if mine:
+            with ExpertPlanner(exact, scn) as planner:
+                expert_times += [planner.plan(p.q_start, p.q_goal, seed=0).stats["planning_time"] for p in mine]
+    return expert_times
+
+
+def _report(args, label: str, n: int, t: dict, batched: list, single: list, full: dict,
+            expert_times: list[float], subset: list) -> tuple[dict, list[list]]:
+    """Metrics and table rows for `n` problems from the timings `t` (batched, single, full, full_single: seconds
+    for all of them), the rollout results and the expert's planning times on `subset`."""
+    policy_times = [r.solution_time for r in single[:len(subset)]]
+    steps = [len(r.trajectory) - 1 for r in batched]
+    m = full["metrics"]["all"]
+    step_batched = statistics.mean(s for r in batched for s in r.step_times)
+    step_single = statistics.mean(s for r in single for s in r.step_times)
+    expert_s, policy_s = statistics.mean(expert_times), statistics.mean(policy_times)
+    metrics = {"problems": n, "n_e": args.n_e, "steps_mean": statistics.mean(steps),
+               "rollout/batched_per_s": n / t["batched"], "rollout/single_per_s": n / t["single"],
+               "rollout/speedup": t["single"] / t["batched"], "evaluate/batched_per_s": n / t["full"],
+               "evaluate/single_per_s": n / t["full_single"], "evaluate/speedup": t["full_single"] / t["full"],
+               "step/batched_ms": 1e3 * step_batched, "step/single_ms": 1e3 * step_single,
+               "solution/policy_single_s": policy_s,
+               "solution/policy_batched_s": statistics.mean(r.solution_time for r in batched),
+               "solution/expert_s": expert_s, "solution/expert_vs_policy": expert_s / policy_s,
+               f"{label}/success_rate": m["success_rate"], f"{label}/collision_rate": m["collision_rate"]}
+    rows = [[f"rollouts ({n} problems, n_e={args.n_e}, {statistics.mean(steps):.0f} steps avg)",
+             f"{n / t['batched']:.1f}/s batched", f"{n / t['single']:.1f}/s one at a time",
+             f"{t['single'] / t['batched']:.1f}x"],
+            ["rollouts + pybullet checks (evaluate)", f"{n / t['full']:.1f}/s batched",
+             f"{n / t['full_single']:.1f}/s one at a time", f"{t['full_single'] / t['full']:.1f}x"],
+            ["policy step call", f"{1e3 * step_batched:.2f} ms for B<={n}", f"{1e3 * step_single:.2f} ms for B=1",
+             f"{step_single * n / step_batched:.1f}x per problem"],
+            [f"solution time, {len(subset)} problems", f"{policy_s * 1e3:.1f} ms policy (B=1)",
+             f"{expert_s:.3f} s expert planning", f"{expert_s / policy_s:.2f}x"],
+            [f"{label} policy on these problems", f"success {m['success_rate']:.0%}",
+             f"collision {m['collision_rate']:.0%}", ""]]
+    return metrics, [HEADER, *rows]
+
+
+def run(args) -> tuple[dict, list[list]]:
+    """Batched rollouts against one problem at a time, and the policy's solution time against the expert's."""
+    from samp.eval import RolloutConfig, evaluate, rollout
+    from samp.robot import load_robot
+
+    device = torch.device(args.device)
+    exact = load_robot(args.robot, dtype=torch.float64)
+    scenes = bench_scenes()
+    problems = bench_problems(exact, scenes, args.problems)[:args.problems]
+    policy = _load_policy(args, device)
+    grids = {id(s): s.anchor_grid(args.n_e) for s in scenes}  # computed once (disk-cached), as a dataset's
+    source = lambda p, n_e: grids[id(p.scene)]  # noqa: E731
+    batched_cfg, single_cfg = RolloutConfig(), RolloutConfig(batch_size=1)
+    label = policy.name if args.policy_run else "straight"
+    repeats = 1 if args.policy_run else 3
+
+    rollout(policy, problems[:4], batched_cfg, source)  # warm-up
+    t = {}
+    t["batched"], batched = _median_time(lambda: rollout(policy, problems, batched_cfg, source), repeats)
+    t["single"], single = _median_time(lambda: rollout(policy, problems, single_cfg, source), repeats)
+    t["full"], full = _median_time(lambda: evaluate(policy, problems, batched_cfg, grids=source), repeats)
+    t["full_single"], _ = _median_time(lambda: evaluate(policy, problems, single_cfg, grids=source), repeats)
+
+    subset = problems[:args.expert_problems]
+    return _report(args, label, len(problems), t, batched, single, full, _expert_times(exact, scenes, subset), subset)

@@ -1,5 +1,5 @@
 import sys
 
-from samp.train.recipe import main
+from samp.train.cli import main
 
 sys.exit(main())

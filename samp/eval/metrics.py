@@ -37,7 +37,7 @@ import numpy as np
 from samp.eval.config import RolloutConfig, tolerance_label
 
 __all__ = ["METRICS", "STATS", "TABLE_COLUMNS", "Column", "Metric", "flat_metrics", "logged_metrics", "markdown_table",
-           "metric", "metric_keys", "reached_within", "summarize", "table_metrics"]
+           "metric", "metric_keys", "reached_within", "summarize", "table_metrics", "wilson_interval"]
 
 
 def reached_within(position_error: float | None, orientation_error: float | None, cfg: RolloutConfig) -> dict[str, bool]:
@@ -49,9 +49,26 @@ def reached_within(position_error: float | None, orientation_error: float | None
 
 
 # ----------------------------------------------------------------- how a metric's values pool
+Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile: two-sided 95 % intervals
+
+
+def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float | None, float | None]:
+    """The Wilson score interval of a binomial rate (successes of n), in [0, 1]; (None, None) for n = 0.
+    Unlike p ± z sqrt(p(1-p)/n) it stays within [0, 1] and does not collapse at 0 or n successes."""
+    if n == 0:
+        return None, None
+    p, z2 = successes / n, z * z
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = z * np.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
+    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
+
+
 def _rate(values: list) -> tuple:
-    """The fraction of true values, in [0, 1]."""
-    return (float(np.mean([bool(v) for v in values])) if values else None,)
+    """The fraction of true values, in [0, 1], and its Wilson 95 % interval (low, high)."""
+    if not values:
+        return None, None, None
+    hits = sum(bool(v) for v in values)
+    return (hits / len(values), *wilson_interval(hits, len(values)))
 
 
 def _mean_std(values: list) -> tuple:
@@ -72,7 +89,7 @@ def _counts(values: list) -> tuple:
 
 # stats -> (key suffixes, pooling function returning one value per suffix); the first suffix is the headline
 STATS: dict[str, tuple[tuple[str, ...], Callable[[list], tuple]]] = {
-    "rate": (("",), _rate),
+    "rate": (("", "_ci_low", "_ci_high"), _rate),
     "mean_std": (("_mean", "_std"), _mean_std),
     "mean": (("_mean",), lambda values: _mean_std(values)[:1]),
     "mean_max": (("_mean", "_max"), lambda values: (_mean_std(values)[0], max(values) if values else None)),
@@ -123,11 +140,14 @@ class Column:
         return f"{self.title}{'' if label is None else '@' + label} [{self.unit}]"
 
     def cell(self, values: list) -> str:
-        """`values`: the metric's values under its keys (rate: one; mean_std: mean and std)."""
+        """`values`: the metric's values under its keys (rate: value, interval low and high, shown as
+        "93.3 [84.1, 97.4]"; mean_std: mean and std, shown as "1.24 ± 0.53")."""
         if values[0] is None:
             return "-"
-        scale = _SCALE.get(self.unit, 1.0)
-        return " ± ".join(f"{v * scale:.{self.digits}f}" for v in values)
+        text = [f"{v * _SCALE.get(self.unit, 1.0):.{self.digits}f}" for v in values if v is not None]
+        if len(values) == 3:  # a rate and its interval
+            return f"{text[0]} [{text[1]}, {text[2]}]" if len(text) == 3 else text[0]
+        return " ± ".join(text)
 
 
 @dataclass(frozen=True)
@@ -298,5 +318,6 @@ def markdown_table(rows: list[tuple[str, str, dict]], cfg: RolloutConfig) -> str
         lines.append("| " + " | ".join(cells) + " |")
     note = (f"Reached: end-effector within {labels[0]} and {cfg.orientation_tolerance:g} deg at the end of the rollout "
             f"(which stops at {labels[0]}); success: reached with no collision, self-collision or joint-limit violation. "
-            "Path length: mean ± std over successful problems; times over all problems.")
+            "Rates: percent [Wilson 95 % interval]. Path length: mean ± std over successful problems; times over all "
+            "problems.")
     return "\n".join(lines) + "\n\n" + note + "\n"

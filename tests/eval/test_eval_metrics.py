@@ -208,6 +208,35 @@ PINNED = [
 ]
 
 
+def _wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """An independent oracle for the Wilson interval: the two p with (k/n - p)^2 = z^2 p (1 - p) / n."""
+    ph = k / n
+    roots = np.sort(np.roots([1 + z * z / n, -(2 * ph + z * z / n), ph * ph]).real)
+    return float(roots[0]), float(roots[1])
+
+
+def _with_intervals(rates: dict[str, tuple[int, int]]) -> dict:
+    """{key: (k, n)} -> {key: k/n, key_ci_low: .., key_ci_high: ..} (the "@tol" suffix stays last)."""
+    out = {}
+    for key, (k, n) in rates.items():
+        name, at, tol = key.partition("@")
+        low, high = _wilson(k, n)
+        out.update({key: k / n, f"{name}_ci_low{at}{tol}": low, f"{name}_ci_high{at}{tol}": high})
+    return out
+
+
+def test_wilson_interval_against_the_quadratic_and_published_values():
+    from samp.eval.metrics import wilson_interval
+
+    for k, n in [(0, 10), (1, 6), (2, 6), (5, 10), (10, 10), (95, 100), (380, 400)]:
+        assert wilson_interval(k, n) == pytest.approx(_wilson(k, n), abs=1e-12), (k, n)
+    assert wilson_interval(2, 6) == pytest.approx((0.0968, 0.7000), abs=1e-4)  # Wilson (1927), tabulated
+    assert wilson_interval(0, 10) == pytest.approx((0.0, 0.2775), abs=1e-4)
+    assert wilson_interval(0, 0) == (None, None)
+    # the width the benchmark is sized for: n = 384 keeps a 95 % interval within +-5 points at any rate
+    assert max(np.subtract(*wilson_interval(k, 384)[::-1]) / 2 for k in range(385)) < 0.05
+
+
 def test_summarize_keeps_its_keys_order_and_values():
     """Every key metrics.json has had, in its order, with values worked out by hand (population std)."""
     m = summarize(PINNED, RolloutConfig())
@@ -216,11 +245,13 @@ def test_summarize_keeps_its_keys_order_and_values():
     # path length over the successes {1, 2}: 1.5 ± 0.5; over every known length {1, 2, 4, 3, 5}: 3 ± sqrt(2)
     # solution time over {0.2, 0.4, 0.6, 0.8}: 0.5 ± sqrt(0.05)
     # step times {0.01, 0.03, 0.02, 0.04, 0.02 x5, 0.06}: mean 0.26 / 10, squared deviations sum to 0.00184
+    # every rate comes with its Wilson 95 % interval (keys `<name>_ci_low`, `<name>_ci_high`)
     expected = {
         "problems": 6,
-        "success_rate@2cm": 2 / 6, "reach_rate@2cm": 4 / 6, "success_rate@1cm": 1 / 6, "reach_rate@1cm": 2 / 6,
-        "success_rate": 2 / 6, "reach_rate": 4 / 6,
-        "collision_rate": 2 / 6, "self_collision_rate": 1 / 6, "joint_limit_rate": 1 / 6, "violation_rate": 3 / 6,
+        **_with_intervals({"success_rate@2cm": (2, 6), "reach_rate@2cm": (4, 6), "success_rate@1cm": (1, 6),
+                           "reach_rate@1cm": (2, 6), "success_rate": (2, 6), "reach_rate": (4, 6),
+                           "collision_rate": (2, 6), "self_collision_rate": (1, 6), "joint_limit_rate": (1, 6),
+                           "violation_rate": (3, 6)}),
         "path_length_mean": 1.5, "path_length_std": 0.5,
         "path_length_all_mean": 3.0, "path_length_all_std": np.sqrt(2.0),
         "solution_time_mean": 0.5, "solution_time_std": np.sqrt(0.05),
@@ -231,7 +262,7 @@ def test_summarize_keeps_its_keys_order_and_values():
     }
     assert list(m) == list(expected), f"keys: expected {list(expected)}, got {list(m)}"
     for key, want in expected.items():
-        assert m[key] == pytest.approx(want, rel=1e-12), f"{key}: expected {want}, got {m[key]}"
+        assert m[key] == pytest.approx(want, rel=1e-9), f"{key}: expected {want}, got {m[key]}"
     assert list(m["terminations"]) == ["reached", "stalled", "max_steps"], "in order of first appearance"
     assert type(m["problems"]) is int and all(type(m[k]) is float for k in expected if k.endswith(("rate", "_mean")))
 
@@ -239,7 +270,10 @@ def test_summarize_keeps_its_keys_order_and_values():
 def test_summarize_without_successes_collisions_or_problems():
     nothing = [_problem((False, False), 2.0, 0.5, [0.01], "max_steps")]
     m = summarize(nothing, RolloutConfig(report_tolerances=[]))
-    assert [k for k in m if "@" in k] == ["success_rate@2cm", "reach_rate@2cm"], "one tolerance: one key each"
+    assert [k for k in m if "@" in k] == ["success_rate@2cm", "success_rate_ci_low@2cm", "success_rate_ci_high@2cm",
+                                          "reach_rate@2cm", "reach_rate_ci_low@2cm", "reach_rate_ci_high@2cm"], \
+        "one tolerance: one rate and its interval each"
+    assert m["success_rate_ci_low"] == 0.0 and m["success_rate_ci_high"] == pytest.approx(_wilson(0, 1)[1])
     assert m["success_rate"] == 0.0 and m["path_length_mean"] is None and m["path_length_std"] is None
     assert m["path_length_all_mean"] == 2.0 and m["path_length_all_std"] == 0.0
     assert m["collision_depth_mean"] is None and m["collision_depth_max"] is None
@@ -252,18 +286,19 @@ def test_markdown_table_keeps_its_header_cells_and_note():
     cfg = RolloutConfig()
     table = markdown_table([("samp", "heldout", summarize(PINNED, cfg)), ("expert", "train", {})], cfg)
     # soln. time 0.5 ± sqrt(0.05) = 0.2236; path length 1.5 ± 0.5; rates in percent to one decimal;
-    # step time 26 ± 1e3 * sqrt(0.000184) = 13.565 ms
+    # step time 26 ± 1e3 * sqrt(0.000184) = 13.565 ms; rates with their Wilson intervals (2/6: [9.7, 70.0],
+    # 1/6: [3.0, 56.4], 4/6: [30.0, 90.3])
     expected = (
         "| planner | split | problems | soln. time [s] | path length [m] | success@2cm [%] | success@1cm [%] "
         "| reach@2cm [%] | reach@1cm [%] | collision [%] | self-coll. [%] | joint limits [%] | step [ms] |\n"
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
-        "| samp | heldout | 6 | 0.500 ± 0.224 | 1.50 ± 0.50 | 33.3 | 16.7 | 66.7 | 33.3 | 33.3 | 16.7 | 16.7 "
-        "| 26.00 ± 13.56 |\n"
+        "| samp | heldout | 6 | 0.500 ± 0.224 | 1.50 ± 0.50 | 33.3 [9.7, 70.0] | 16.7 [3.0, 56.4] | 66.7 [30.0, 90.3] "
+        "| 33.3 [9.7, 70.0] | 33.3 [9.7, 70.0] | 16.7 [3.0, 56.4] | 16.7 [3.0, 56.4] | 26.00 ± 13.56 |\n"
         "| expert | train | 0 | - | - | - | - | - | - | - | - | - | - |\n"
         "\n"
         "Reached: end-effector within 2cm and 15 deg at the end of the rollout (which stops at 2cm); success: "
-        "reached with no collision, self-collision or joint-limit violation. Path length: mean ± std over "
-        "successful problems; times over all problems.\n")
+        "reached with no collision, self-collision or joint-limit violation. Rates: percent [Wilson 95 % interval]. "
+        "Path length: mean ± std over successful problems; times over all problems.\n")
     assert table == expected, f"expected\n{expected}\ngot\n{table}"
     assert TABLE_COLUMNS == ["planner", "split", "problems", "soln. time [s]", "path length [m]", "success [%]",
                              "reach [%]", "collision [%]", "self-coll. [%]", "joint limits [%]", "step [ms]"]
@@ -309,10 +344,11 @@ def test_a_metric_added_to_the_registry_reaches_summarize_and_the_table(monkeypa
                    column=Column("stalled", "%", digits=1, rank=90), logged=True)
     monkeypatch.setattr(metrics, "METRICS", (*METRICS, stall))
     m = summarize(PINNED, RolloutConfig())
-    assert list(m)[-2:] == ["terminations", "stall_rate"] and m["stall_rate"] == pytest.approx(1 / 6)
+    assert list(m)[-4:] == ["terminations", "stall_rate", "stall_rate_ci_low", "stall_rate_ci_high"]
+    assert m["stall_rate"] == pytest.approx(1 / 6) and m["stall_rate_ci_low"] == pytest.approx(_wilson(1, 6)[0])
     assert metrics.logged_metrics()[-1] == "stall_rate"
     lines = markdown_table([("samp", "heldout", m)], RolloutConfig()).splitlines()
-    assert lines[0].endswith("| step [ms] | stalled [%] |") and lines[2].endswith("| 26.00 ± 13.56 | 16.7 |"), lines
+    assert lines[0].endswith("| step [ms] | stalled [%] |") and lines[2].endswith("| 26.00 ± 13.56 | 16.7 [3.0, 56.4] |"), lines
 
 
 def test_the_metrics_module_stays_below_samp_runs():

@@ -17,7 +17,7 @@ ENTRY_POINTS = ["samp.train", "samp.eval", "samp.data", "samp.runs", "samp.robot
 
 def _main(module: str):
     """The `main` of `python -m MODULE`."""
-    name = {"samp.train": "samp.train.recipe", "samp.eval": "samp.eval.__main__"}.get(module, f"{module}.__main__")
+    name = {"samp.train": "samp.train.cli", "samp.eval": "samp.eval.__main__"}.get(module, f"{module}.__main__")
     return importlib.import_module(name).main
 
 

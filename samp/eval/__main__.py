@@ -1,11 +1,11 @@
-"""`python -m samp.eval run=RUN_DIR [split=heldout] [problems=N] [key=value ...]`
+"""`python -m samp.eval run=RUN_DIR [benchmark=unseen] [splits=[val,train]] [problems=N] [key=value ...]`
 `python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] ...`
 
-Evaluates a run's policy (or the expert, or the straight-line baseline) on fixed, seeded problems from a
-dataset's training and held-out scenes, the expert's stored trajectories on the same problems beside it,
-and writes into `RUN_DIR/eval/` (or `out`): metrics.json (metrics per split, for the planner and the
-expert), metrics.md (the table), problems.jsonl (one record per problem and planner) and recording.rrd.
-Settings: conf/eval.yaml (schema: samp/eval/config.py).
+Evaluates a run's policy (or the expert, or the straight-line baseline) under the evaluation protocol
+(`samp.eval.report`): the stored evaluation problems of the run's dataset, per split (validation and
+training scenes, never trained on), and the standing benchmark of unseen scenes, with the expert and the
+straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (or `out`): metrics.json,
+metrics.md, problems.jsonl and recording.rrd. Settings: conf/eval.yaml (schema: samp/eval/config.py).
 """
 
 from __future__ import annotations
@@ -15,8 +15,11 @@ from pathlib import Path
 
 from samp.cli import compose, output_path, run_command
 
-USAGE = """usage: python -m samp.eval run=RUN_DIR [split=heldout] [problems=N] [key=value ...]     a run's policy
+USAGE = """usage: python -m samp.eval run=RUN_DIR [benchmark=unseen|null] [splits=[val,train]] [problems=N] [key=value ...]
+                                                                          a run's policy
        python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] [key=value ...]
+Sections: the dataset's stored evaluation problems per split (val, train, test scenes) and the standing
+benchmark of unseen scenes, each with the expert and the straight line beside the planner.
 Writes RUN_DIR/eval/ (or out=DIR): metrics.json, metrics.md, problems.jsonl and recording.rrd."""
 
 
@@ -48,16 +51,20 @@ def _config(overrides: list[str]):
 
 
 def _open_dataset(cfg, run):
+    """The dataset whose splits are evaluated and, for a run, whose scenes it trained on (None: neither)."""
     from samp.data import open_dataset
 
     ref = cfg.dataset or (run.dataset if run else None)
     if ref is None:
-        where = f"{run.path / 'run.json'} names no dataset" if run else "no run was given"
-        raise ValueError(f"say which dataset to take problems from: dataset=REF ({where})")
+        if cfg.splits:
+            where = f"{run.path / 'run.json'} names no dataset" if run else "no run was given"
+            raise ValueError(f"say which dataset to take problems from: dataset=REF ({where}), or splits=[] with a "
+                             "benchmark")
+        return None
     return open_dataset(ref, Path(cfg.root) if cfg.root else None)
 
 
-def _planner(cfg, run, ds):
+def _planner(cfg, run, manifest: dict):
     from samp.eval.loading import load_planner
     from samp.robot import load_robot
 
@@ -65,11 +72,11 @@ def _planner(cfg, run, ds):
         from samp.eval.loading import check_policy_robot
 
         policy = load_planner(run.path)
-        check_policy_robot(policy, ds.manifest)
+        check_policy_robot(policy, manifest)
         if cfg.n_e is not None:
             policy.n_e = cfg.n_e
         return policy
-    robot = load_robot(ds.manifest["robot"]["name"])
+    robot = load_robot(manifest["robot"]["name"])
     if cfg.planner == "straight":
         return load_planner("straight", robot=robot, max_step=cfg.straight_max_step, n_e=cfg.n_e)
     from samp.eval.planners import EXPERT_VARIANTS
@@ -77,20 +84,20 @@ def _planner(cfg, run, ds):
     if cfg.planner in EXPERT_VARIANTS:  # the dataset's expert settings, planned afresh without post-processing
         from samp.expert import load_expert_config
 
-        config = load_expert_config(ds.manifest.get("config", {}).get("expert_config"), **EXPERT_VARIANTS[cfg.planner])
+        config = load_expert_config(manifest.get("config", {}).get("expert_config"), **EXPERT_VARIANTS[cfg.planner])
         return load_planner("expert", robot=robot, mode="plan", config=config, seed=cfg.seed, name=cfg.planner)
     return load_planner("expert", robot=robot, mode=cfg.expert_mode, seed=cfg.seed)
 
 
-def _out_dir(cfg, run, ds) -> Path:
-    from samp.eval.names import EVAL_DIR, METRICS_JSON
+def _out_dir(cfg, run, label: str) -> Path:
+    from samp.names import EVAL_DIR, METRICS_JSON
 
     if cfg.out:
         out = output_path(Path(cfg.out) / METRICS_JSON).parent
     elif run is not None:
         out = run.path / EVAL_DIR
     else:
-        out = output_path(Path("runs") / "eval" / f"{cfg.planner}_{ds.name}@{ds.id}" / METRICS_JSON).parent
+        out = output_path(Path("runs") / "eval" / f"{cfg.planner}_{label}" / METRICS_JSON).parent
     if (out / METRICS_JSON).exists() and not cfg.overwrite:
         raise ValueError(f"{out / METRICS_JSON} exists from an earlier evaluation; pass overwrite=true to replace it, "
                          "or out=DIR to write elsewhere")
@@ -99,11 +106,12 @@ def _out_dir(cfg, run, ds) -> Path:
 
 
 def _evaluate(overrides: list[str]) -> Path:
-    """The recipe: config, run and dataset, problems, planner, evaluation (and the expert's), files."""
+    """The recipe: config, run, dataset and benchmark, planner, sections, evaluation, files."""
     cfg = _config(overrides)
     # Heavy imports only once the config is known to be good.
+    from samp.eval.benchmark import open_benchmark
     from samp.eval.loading import check_robot, find_checkpoint, read_run
-    from samp.eval.report import evaluate_on_dataset
+    from samp.eval.report import evaluate_sections, protocol_sections
 
     if (cfg.run is None) == (cfg.planner is None):
         raise ValueError("say what to evaluate: run=RUN_DIR (a trained policy) or planner=expert|straight dataset=REF, "
@@ -112,11 +120,18 @@ def _evaluate(overrides: list[str]) -> Path:
     if run is not None:
         find_checkpoint(run.path)  # a missing checkpoint fails before any dataset work
     ds = _open_dataset(cfg, run)
+    bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
+    manifest = (ds or bench).manifest
     if run is not None:
-        check_robot(run, ds.manifest)
-    planner = _planner(cfg, run, ds)
-    out = _out_dir(cfg, run, ds)
-    evaluate_on_dataset(planner, ds, cfg, out, run.path if run else None)
+        check_robot(run, manifest)
+    planner = _planner(cfg, run, manifest)
+    sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot if hasattr(planner, "robot")
+                                 else None, trained=ds if run is not None else None)
+    label = f"{ds.name}@{ds.id}" if ds is not None else f"{bench.name}@{bench.id}"
+    out = _out_dir(cfg, run, label)
+    evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
+                      dataset=None if ds is None else f"{ds.name}@{ds.id}",
+                      benchmark=None if bench is None else f"{bench.name}@{bench.id}")
     return out
 
 

@@ -18,9 +18,11 @@ from pathlib import Path
 
 import pytorch_lightning as pl
 
-from samp.eval.config import rollout_config
+from samp.eval.config import RolloutConfig, rollout_config
 from samp.eval.metrics import logged_metrics, metric
-from samp.eval.names import ALL_SPLITS, BEST_CKPT, CHECKPOINT_DIR, METRIC_PREFIX, SPLITS
+from samp.eval.names import ALL_SPLITS, BEST_CKPT, CHECKPOINT_DIR, METRIC_PREFIX
+
+SELECTION_SPLITS = ("val", "train", "both")
 
 __all__ = ["EvalCallback", "LOGGED_METRICS"]
 
@@ -35,25 +37,30 @@ class EvalCallback(pl.Callback):
         problems: a list of `Problem`s, or a count per split to take from `dataset` (fixed by `seed`).
         every_k_epochs: evaluate after the validation of every k-th epoch (epochs k, 2k, ...).
         dataset: dataset reference (name, name@id or folder), when `problems` is a count.
-        split: "train", "heldout" or "both".
+        split: "val" (the validation scenes' stored evaluation problems: what selects the checkpoint),
+            "train" (the training scenes' evaluation problems) or "both"; never the test scenes.
         seed: fixes which problems are taken.
         rollout: `RolloutConfig` keys (max_steps, tolerances, batch_size, ...).
         dirpath: where best.ckpt goes (default `<trainer.default_root_dir>/checkpoints`).
         save_best: write best.ckpt when the success rate improves.
     """
 
-    def __init__(self, problems=32, every_k_epochs: int = 1, dataset: str | None = None, split: str = "heldout",
+    def __init__(self, problems=32, every_k_epochs: int = 1, dataset: str | None = None, split: str = "val",
                  seed: int = 0, rollout: dict | None = None, dirpath: str | None = None, save_best: bool = True):
         super().__init__()
         if not isinstance(every_k_epochs, int) or every_k_epochs < 1:
             raise ValueError(f"every_k_epochs must be an integer >= 1, got {every_k_epochs!r}")
-        if split not in (*SPLITS, "both"):
-            raise ValueError(f"split must be 'train', 'heldout' or 'both', got {split!r}")
+        split = "val" if split == "heldout" else split  # the validation scenes' old name
+        if split not in SELECTION_SPLITS:
+            raise ValueError(f"split must be 'val', 'train' or 'both' (test scenes never take part in training or "
+                             f"checkpoint selection), got {split!r}")
         if isinstance(problems, int) and dataset is None:
             raise ValueError(f"EvalCallback(problems={problems}) takes problems from a dataset: give dataset=REF, "
                              "or pass a list of samp.eval.Problem")
         self.every_k_epochs, self.dataset, self.split, self.seed = every_k_epochs, dataset, split, seed
-        self.rollout = rollout_config(rollout)
+        # Outcomes only: one batch, no second pass one problem at a time for latencies.
+        self.rollout = rollout if isinstance(rollout, RolloutConfig) else \
+            rollout_config({"batch_size": None, "timed_problems": 0, **(rollout or {})})
         self.dirpath, self.save_best = dirpath, save_best
         self._problems = None if isinstance(problems, int) else list(problems)
         self._count = problems if isinstance(problems, int) else None
@@ -69,7 +76,7 @@ class EvalCallback(pl.Callback):
             from samp.eval.problems import dataset_grids, problems_from_dataset
 
             ds = open_dataset(self.dataset)
-            splits = list(SPLITS) if self.split == "both" else [self.split]
+            splits = ["val", "train"] if self.split == "both" else [self.split]
             self._problems = [p for s in splits for p in problems_from_dataset(ds, s, self._count, self.seed)]
             self._grids = dataset_grids(ds)
         return self._problems

@@ -29,7 +29,8 @@ class RolloutConfig:
     substep_resolution: float = 0.02  # collision sub-steps: joint-space Euclidean spacing (rad), as the expert's
     stall_threshold: float = 1e-3  # a step moving less than this (rad, Euclidean) counts as still ...
     stall_steps: int = 10  # ... and this many still steps in a row end the rollout as stalled
-    batch_size: int | None = None  # problems rolled out together (None: a whole split at once)
+    batch_size: int | None = 100  # problems rolled out together for the outcomes (None: a whole split at once)
+    timed_problems: int = 20  # of these, rolled out again one at a time (B = 1) for the per-problem times
 
     def tolerances(self) -> list[float]:
         """Every position tolerance reported, the stopping one first, without repeats."""
@@ -44,8 +45,10 @@ class EvalConfig:
     planner: str | None = None  # without a run: one of PLANNERS
     dataset: str | None = None  # dataset reference (name, name@id, folder); default: the run's dataset
     root: str | None = None  # datasets folder (default: datasets/ or $SAMP_DATASETS_DIR)
-    split: str = "both"  # train | heldout | both (reported separately)
-    problems: int | None = 100  # per split, fixed by seed (null: every trajectory of the split)
+    splits: list[str] = field(default_factory=lambda: ["val", "train"])  # the dataset's sections: train|val|test
+    problems: int | None = 100  # per split, of its stored evaluation problems, fixed by seed (null: all)
+    benchmark: str | None = "unseen"  # the standing benchmark (conf/dataset/bench_NAME.yaml); null: none
+    benchmark_problems: int | None = None  # of the benchmark's problems (null: all of them)
     seed: int = 0
     out: str | None = None  # output folder; default RUN/eval, or runs/eval/PLANNER_DATASET without a run
     overwrite: bool = False  # replace the files of an earlier evaluation in `out`
@@ -54,7 +57,6 @@ class EvalConfig:
     camera: str = "default"  # grid_source=reconstructed: camera set, conf/camera/NAME.yaml or a YAML path
     unknown: str = "free"  # grid_source=reconstructed: what space no camera saw becomes: free | occupied
     compare_expert: bool = True  # also evaluate the expert's stored trajectories on the same problems
-    compare_straight: bool = False  # also roll out the straight-line baseline on the same problems
     expert_mode: str = "replay"  # replay (stored trajectories and times) | plan (plan afresh with OMPL)
     straight_max_step: float = 0.05  # the straight-line baseline's step (rad)
     record: bool = True  # write recording.rrd
@@ -67,7 +69,8 @@ class EvalConfig:
     substep_resolution: float = 0.02
     stall_threshold: float = 1e-3
     stall_steps: int = 10
-    batch_size: int | None = None
+    batch_size: int | None = 100
+    timed_problems: int = 20
 
     def rollout(self) -> RolloutConfig:
         names = {f.name for f in fields(RolloutConfig)}
@@ -93,6 +96,8 @@ def _check_rollout(c: RolloutConfig) -> None:
     _require(all(t > 0 for t in c.report_tolerances), "report_tolerances", "positive metres", c.report_tolerances)
     _require(c.stall_steps >= 1, "stall_steps", ">= 1", c.stall_steps)
     _require(c.batch_size is None or c.batch_size >= 1, "batch_size", "null or >= 1", c.batch_size)
+    _require(isinstance(c.timed_problems, int) and c.timed_problems >= 0, "timed_problems", "an integer >= 0",
+             c.timed_problems)
 
 
 def _merge(schema, raw, what: str):
@@ -120,8 +125,14 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
     schema does not know is refused with the valid keys (Hydra alone would accept it)."""
     raw = OmegaConf.create(raw) if isinstance(raw, dict) else raw
     cfg: EvalConfig = _merge(EvalConfig, raw, "eval config")
-    _require(cfg.split in ("train", "heldout", "both"), "split", "train | heldout | both", cfg.split)
+    cfg.splits = ["val" if s == "heldout" else s for s in cfg.splits]  # the validation scenes' old name
+    _require(set(cfg.splits) <= {"train", "val", "test"} and len(set(cfg.splits)) == len(cfg.splits), "splits",
+             "a list of distinct train | val | test", cfg.splits)
     _require(cfg.problems is None or cfg.problems >= 1, "problems", "null or >= 1", cfg.problems)
+    _require(cfg.benchmark_problems is None or cfg.benchmark_problems >= 1, "benchmark_problems", "null or >= 1",
+             cfg.benchmark_problems)
+    _require(cfg.benchmark is None or (cfg.benchmark and "/" not in cfg.benchmark), "benchmark",
+             "a benchmark name (conf/dataset/bench_NAME.yaml) or null", cfg.benchmark)
     _require(cfg.expert_mode in ("replay", "plan"), "expert_mode", "replay | plan", cfg.expert_mode)
     _require(cfg.planner in (None, *PLANNERS), "planner", f"{' | '.join(PLANNERS)} (or give run=RUN_DIR)",
              cfg.planner)

@@ -7,7 +7,7 @@ metric code (`samp.eval.metrics`), so the policy and the expert are compared on 
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 
@@ -92,9 +92,31 @@ def _records(planner, problems: list[Problem], results: list[RolloutResult], che
                 "joint_path_length": None if failed else float(np.linalg.norm(np.diff(r.trajectory, axis=0), axis=1).sum()),
                 "solution_time": r.solution_time, "step_times": list(r.step_times),
                 "inference_time": float(np.mean(r.step_times)) if r.step_times else None,
+                "batch": None if r.batch_time is None else r.batch,  # None: answered alone (a trajectory planner)
+                "batch_time": r.solution_time if r.batch_time is None else r.batch_time,
+                # one problem at a time: a trajectory planner always answers so; a step policy for the
+                # problems `_time_one_at_a_time` rolls out again alone
+                "solution_time_b1": r.solution_time if r.batch_time is None else None, "step_times_b1": [],
                 "q_start": p.q_start.tolist(), "q_goal": p.q_goal.tolist(), "trajectory": r.trajectory.tolist(),
             }
     return records
+
+
+def timed_rows(count: int, total: int) -> list[int]:
+    """`count` problem indices spread evenly over `total` (all of them when count >= total)."""
+    if count >= total:
+        return list(range(total))
+    return sorted({int(round(i)) for i in np.linspace(0, total - 1, count)})
+
+
+def _time_one_at_a_time(policy, problems: list[Problem], records: list[dict], cfg: RolloutConfig, grids,
+                        checker_robot) -> None:
+    """Roll `cfg.timed_problems` problems out again alone (B = 1) and put their solution and step times in
+    their records: the per-problem latency the paper's tables report, apart from the batched outcomes."""
+    single = replace(cfg, batch_size=1)
+    for i in timed_rows(cfg.timed_problems, len(problems)):
+        (alone,) = rollout(policy, [problems[i]], single, grids, checker_robot)
+        records[i]["solution_time_b1"], records[i]["step_times_b1"] = alone.solution_time, list(alone.step_times)
 
 
 def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | None = None, *, robot=None,
@@ -109,7 +131,9 @@ def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | No
         grids: where a policy's anchor grids come from (default: each scene's exact `anchor_grid`).
     Returns:
         {"planner": name, "metrics": {split: metrics, ..., "all": metrics}, "records": [one per problem],
-         "config": the rollout config as a dict}.
+         "config": the rollout config as a dict}. A step policy's outcomes come from batched rollouts
+        (`config.batch_size`); `config.timed_problems` of the problems are also rolled out alone for the
+        B = 1 solution and step times (`solution_time_b1`, `step_time_b1` in the metrics).
     """
     cfg = rollout_config(config)
     problems = list(problems)
@@ -132,7 +156,11 @@ def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | No
             results = rollout(planner, subset, cfg, grids, checker_robot) if is_policy else \
                 _plan_all(planner, subset, checker_robot)
             for i, rec in zip(rows, _records(planner, subset, results, checker, cfg)):
+                if rec["batch"] is not None:  # batches are numbered per split: make them unique over all
+                    rec["batch"] = f"{problems[i].split}/{rec['batch']}"
                 records[i] = rec
+    if is_policy:
+        _time_one_at_a_time(planner, problems, records, cfg, grids, checker_robot)
     metrics = {split: summarize([records[i] for i in rows], cfg) for split, rows in splits.items()}
     metrics[ALL_SPLITS] = summarize(records, cfg)
     return {"planner": planner_name(planner), "metrics": metrics, "records": records, "config": asdict(cfg)}

@@ -11,8 +11,11 @@ inference times.
                  apart, and `violation_rate` for any of the three
   path length    sum of ||dp_ee|| over the executed waypoints, metres: mean and std over the successful
                  problems (a failed path's length says little), and over all problems as `path_length_all`
-  solution time  wall time spent producing each trajectory (seconds), over all problems
-  inference time wall time per policy step call (seconds), over every step of every problem
+  solution time  wall time spent producing each trajectory (seconds): `solution_time_b1` one problem at a
+                 time (B = 1; the paper's), over the `timed_problems` solved so; `solution_time` in the
+                 batched rollouts the outcomes come from (a batch's latency)
+  step time      wall time per policy step call: `step_time_b1` at B = 1, `inference_time` batched
+  throughput     problems per second in the batched rollouts (B = the rollout's batch_size)
 
 `METRICS` below is the one place a metric is defined; everything else reads it: `summarize`
 (metrics.json), `markdown_table` (metrics.md), `EvalCallback` (`logged_metrics()`), the values flattened
@@ -87,6 +90,15 @@ def _counts(values: list) -> tuple:
     return (counts,)
 
 
+def _throughput(values: list) -> tuple:
+    """(batch, seconds the batch took) per problem -> problems per second; a problem answered alone
+    (batch None) is a batch of its own."""
+    times = {(i, None) if batch is None else batch: seconds for i, (batch, seconds) in enumerate(values)
+             if seconds is not None}
+    total = sum(times.values())
+    return (len(values) / total if values and total > 0 else None,)
+
+
 # stats -> (key suffixes, pooling function returning one value per suffix); the first suffix is the headline
 STATS: dict[str, tuple[tuple[str, ...], Callable[[list], tuple]]] = {
     "rate": (("", "_ci_low", "_ci_high"), _rate),
@@ -94,6 +106,8 @@ STATS: dict[str, tuple[tuple[str, ...], Callable[[list], tuple]]] = {
     "mean": (("_mean",), lambda values: _mean_std(values)[:1]),
     "mean_max": (("_mean", "_max"), lambda values: (_mean_std(values)[0], max(values) if values else None)),
     "counts": (("",), _counts),
+    "count": (("",), lambda values: (sum(bool(v) for v in values),)),
+    "throughput": (("",), _throughput),
 }
 
 
@@ -117,8 +131,13 @@ def collided(record: dict, tol: str) -> bool:
 
 
 def recorded(key: str) -> Callable[[dict, str], Any]:
-    """The record's own value at `key`."""
-    return lambda record, tol: record[key]
+    """The record's own value at `key` (None when an older record lacks it)."""
+    return lambda record, tol: record.get(key)
+
+
+def timed_alone(record: dict, tol: str) -> bool:
+    """Whether the problem was also solved one at a time (B = 1) for its latency."""
+    return record.get("solution_time_b1") is not None
 
 
 # ----------------------------------------------------------------- the registry
@@ -188,8 +207,9 @@ class Metric:
     def __post_init__(self):
         if self.stats not in STATS:
             raise ValueError(f"metric {self.name!r}: stats must be one of {sorted(STATS)}, got {self.stats!r}")
-        if self.column is not None and self.stats not in ("rate", "mean_std"):
-            raise ValueError(f"metric {self.name!r}: a table column shows a rate or a mean_std, got {self.stats!r}")
+        if self.column is not None and self.stats not in ("rate", "mean_std", "throughput"):
+            raise ValueError(f"metric {self.name!r}: a table column shows a rate, a mean_std or a throughput, got "
+                             f"{self.stats!r}")
         if self.curve and not self.logged:
             raise ValueError(f"metric {self.name!r}: a learning curve plots a logged metric; set logged=True")
 
@@ -227,10 +247,17 @@ METRICS: tuple[Metric, ...] = (
     Metric("path_length", recorded("path_length"), "mean_std", over=succeeded,
            column=Column("path length", "m", digits=2, rank=20), logged=True, flat=True),
     Metric("path_length_all", recorded("path_length"), "mean_std"),
-    Metric("solution_time", recorded("solution_time"), "mean_std",
-           column=Column("soln. time", "s", digits=3, rank=10), logged=True, flat=True),
-    Metric("inference_time", recorded("step_times"), "mean_std", per_step=True,
-           column=Column("step", "ms", digits=2, rank=80), logged=True),
+    # Batched rollouts: the wall time of the calls a problem took part in (the batch's), per step call.
+    Metric("solution_time", recorded("solution_time"), "mean_std", logged=True),
+    Metric("inference_time", recorded("step_times"), "mean_std", per_step=True, logged=True),
+    # One problem at a time (B = 1), the paper's solution and step times, over the problems timed so.
+    Metric("solution_time_b1", recorded("solution_time_b1"), "mean_std", over=timed_alone,
+           column=Column("soln. time B=1", "s", digits=3, rank=10), flat=True),
+    Metric("step_time_b1", lambda record, tol: record.get("step_times_b1") or [], "mean_std", per_step=True,
+           over=timed_alone, column=Column("step B=1", "ms", digits=2, rank=80), flat=True),
+    Metric("timed_problems", timed_alone, "count"),
+    Metric("throughput", lambda record, tol: (record.get("batch"), record.get("batch_time")), "throughput",
+           column=Column("batched", "problems/s", digits=1, rank=90), flat=True),
     Metric("steps", recorded("steps"), "mean", logged=True),
     Metric("collision_depth", recorded("collision_depth"), "mean_max", over=collided),
     Metric("terminations", recorded("termination"), "counts"),
@@ -318,6 +345,7 @@ def markdown_table(rows: list[tuple[str, str, dict]], cfg: RolloutConfig) -> str
         lines.append("| " + " | ".join(cells) + " |")
     note = (f"Reached: end-effector within {labels[0]} and {cfg.orientation_tolerance:g} deg at the end of the rollout "
             f"(which stops at {labels[0]}); success: reached with no collision, self-collision or joint-limit violation. "
-            "Rates: percent [Wilson 95 % interval]. Path length: mean ± std over successful problems; times over all "
-            "problems.")
+            "Rates: percent [Wilson 95 % interval]. Path length: mean ± std over successful problems. Solution and "
+            "step time: one problem at a time (B = 1), over the problems timed so; batched: problems per second "
+            "in the batched rollouts the outcomes come from.")
     return "\n".join(lines) + "\n\n" + note + "\n"

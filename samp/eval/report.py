@@ -1,23 +1,47 @@
-"""Evaluate one planner on a dataset's problems and write the report: the step shared by
+"""Evaluate one planner under the evaluation protocol and write its report: the step shared by
 `python -m samp.eval` (a planner loaded from a run folder, or a built-in one) and the evaluation after
 training (`samp.train.after_fit`, the model just trained, in memory).
 
-Into `out`: metrics.json (metrics per split, for the planner, the expert and the straight line),
-metrics.md (the table), problems.jsonl (one record per problem and planner) and, if `record`,
-recording.rrd (and reconstruction.rrd with reconstructed grids).
+The protocol (DESIGN section 4, "protocol 2"): problems come in *sections*, each reported on its own —
+"val" and "train" are the stored evaluation problems of a dataset's validation and training scenes (new
+problems, never trained on), "test" those of its test scenes, "benchmark" the standing benchmark of
+unseen scenes. Beside the planner, the expert (its stored solutions and planning times) and the straight
+joint-space line run on the same problems, always. A section's problems whose straight line collides form
+its hard subset (`<section>_hard`); the benchmark is also reported per scene generator
+(`benchmark_<generator>`). Every rate carries its Wilson 95 % interval (`samp.eval.metrics`).
+
+Into `out`: metrics.json ({"protocol": 2, "groups": {group: source and size}, "metrics" / "expert" /
+"straight": {group: metrics}, ...}), metrics.md (the table), problems.jsonl (one record per problem and
+planner, with its group) and, if `record`, recording.rrd (and reconstruction.rrd with reconstructed grids).
 """
 
 from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["evaluate_on_dataset", "grid_source"]
+__all__ = ["PROTOCOL", "Section", "dataset_sections", "evaluate_sections", "grid_source", "protocol_sections"]
+
+PROTOCOL = 2  # metrics.json without a "protocol" key: version 1 (training demonstrations as problems)
+HARD = "_hard"  # group suffix: the problems whose straight joint-space line collides
 
 
-def grid_source(cfg, ds, planner):
+@dataclass
+class Section:
+    """Problems reported together. `grids`: where a policy's anchor grids come from; `source`: what the
+    problems are, for the report; `reconstruction`: the `ReconstructedGrids` behind `grids`, if any."""
+
+    name: str
+    problems: list
+    grids: object
+    source: str
+    reconstruction: object = None
+
+
+def grid_source(cfg, ds, robot):
     """(grid source, its ReconstructedGrids or None): the dataset's exact grids, or grids reconstructed
     from simulated depth cameras (`grid_source=reconstructed`); collisions are checked exactly either way."""
     from samp.eval.problems import dataset_grids
@@ -29,81 +53,158 @@ def grid_source(cfg, ds, planner):
     from samp.robot import load_robot
     from samp.robot.precision import exact_robot
 
-    robot = getattr(planner, "robot", None) or load_robot(ds.manifest["robot"]["name"])
+    robot = robot or load_robot(ds.manifest["robot"]["name"])
     source = ReconstructedGrids(cfg.camera, exact_robot(robot), exact=exact, unknown=cfg.unknown)
     return source, source
 
 
-def evaluate_on_dataset(planner, ds, cfg, out: Path, run_path: Path | None = None) -> dict:
-    """Roll out or replay `planner` on `cfg.problems` problems per split of `ds` (`cfg.split`, fixed by
-    `cfg.seed`), with the expert and the straight line beside it as `cfg` asks; write the files into
-    `out` (which must exist) and return the report (the content of metrics.json)."""
+def dataset_sections(ds, splits: list[str], count: int | None, seed: int, cfg, robot, name: str | None = None):
+    """One `Section` per split of `ds` ("train" | "val" | "test"), from its stored evaluation problems;
+    `name` renames a single section (the benchmark)."""
+    from samp.eval.problems import problems_from_dataset
+
+    sections = []
+    for split in splits:
+        label = name or split
+        problems = [replace(p, split=label) for p in problems_from_dataset(ds, split, count, seed)]
+        if not problems:
+            raise ValueError(f"dataset {ds.name}@{ds.id} has no evaluation problems in its {split} scenes; pick other "
+                             "splits (splits=[train,val]) or a dataset with such scenes")
+        grids, reconstruction = grid_source(cfg, ds, robot)
+        scenes = len({p.scene_index for p in problems})
+        source = f"{ds.name}@{ds.id}: {len(problems)} stored evaluation problems in {scenes} {split} scene(s)"
+        sections.append(Section(label, problems, grids, source, reconstruction))
+    return sections
+
+
+def protocol_sections(cfg, ds, bench, robot, trained=None):
+    """The sections `cfg` asks for: the dataset's splits, then the benchmark; test and benchmark sections
+    are checked against the scenes of `trained` (the dataset a run trained on)."""
+    from samp.eval.benchmark import check_unseen, trained_scene_hashes
+
+    sections = dataset_sections(ds, cfg.splits, cfg.problems, cfg.seed, cfg, robot) if ds is not None else []
+    if bench is not None:
+        sections += dataset_sections(bench, ["test"], cfg.benchmark_problems, cfg.seed, cfg, robot, name="benchmark")
+    if trained is not None:
+        check_unseen(sections, trained_scene_hashes(trained), f"{trained.name}@{trained.id}")
+    return sections
+
+
+def _hard(straight_records: list[dict]) -> list[bool]:
+    """Per problem: whether the straight joint-space line from start to goal collides."""
+    return [bool(r["collision"]) for r in straight_records]
+
+
+def _group_rows(section: Section, hard: list[bool]) -> dict[str, list[int]]:
+    """Group name -> row indices into the section: the section, its hard subset and, for the benchmark,
+    each scene generator."""
+    rows = {section.name: list(range(len(section.problems))),
+            section.name + HARD: [i for i, h in enumerate(hard) if h]}
+    if section.name == "benchmark":
+        for i, p in enumerate(section.problems):
+            rows.setdefault(f"benchmark_{p.scene.meta.get('generator', 'unknown')}", []).append(i)
+    return rows
+
+
+def _evaluate_section(planner, section: Section, cfg, expert) -> dict:
+    """{planner name: evaluate result} for the planner, the expert (unless it is the planner) and the
+    straight line, on one section."""
     from samp.eval.harness import evaluate
     from samp.eval.loading import load_planner
-    from samp.eval.problems import problems_from_dataset
-    from samp.names import SPLITS
 
-    splits = list(SPLITS) if cfg.split == "both" else [cfg.split]
-    problems = [p for s in splits for p in problems_from_dataset(ds, s, cfg.problems, cfg.seed)]
-    grids, reconstruction = grid_source(cfg, ds, planner)
-    counts = {s: sum(p.split == s for p in problems) for s in splits}
-    print(f"evaluating {planner.name} on {ds.name}@{ds.id}: " + ", ".join(f"{n} {s} problems" for s, n in counts.items()),
-          flush=True)
+    rollout = cfg.rollout()
     t0 = time.perf_counter()
-    result = evaluate(planner, problems, cfg.rollout(), grids=grids)
-    print(f"  {planner.name}: {time.perf_counter() - t0:.1f} s (rollouts and checks)", flush=True)
-    expert = None
+    results = {planner.name: evaluate(planner, section.problems, rollout, grids=section.grids)}
+    print(f"  {section.name}: {planner.name} {time.perf_counter() - t0:.1f} s (rollouts and checks)", flush=True)
     if cfg.compare_expert and planner.name != "expert":
-        expert = evaluate(load_planner("expert"), problems, cfg.rollout())
-    others = []
-    if cfg.compare_straight and planner.name != "straight":
+        results["expert"] = evaluate(expert, section.problems, rollout)
+    if planner.name != "straight":  # always the floor (and it defines the hard subset)
         straight = load_planner("straight", robot=planner.robot if hasattr(planner, "robot") else None,
                                 max_step=cfg.straight_max_step, n_e=cfg.n_e)
-        others.append(evaluate(straight, problems, cfg.rollout(), grids=grids))
-    if reconstruction is not None:
-        print("  " + reconstruction.summary())
-    return _write(out, cfg, run_path, ds, problems, planner, result, expert, counts, others, reconstruction)
+        results["straight"] = evaluate(straight, section.problems, replace(rollout, timed_problems=0),
+                                       grids=section.grids)
+    return results
 
 
-def _write(out: Path, cfg, run_path: Path | None, ds, problems, planner, result: dict, expert: dict | None,
-           counts: dict, others: list[dict] = (), reconstruction=None) -> dict:
-    """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`; with
-    reconstructed grids also their errors (metrics.json "reconstruction") and reconstruction.rrd."""
+def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_path: Path | None = None,
+                      dataset: str | None = None, benchmark: str | None = None) -> dict:
+    """Evaluate `planner` (and the expert and the straight line) on every section, write the files into
+    `out` (which must exist) and return the report (the content of metrics.json)."""
+    from samp.eval.loading import load_planner
+    from samp.eval.metrics import summarize
+
+    if not sections:
+        raise ValueError("nothing to evaluate: no sections (give splits=[train,val] and/or benchmark=NAME)")
+    expert = load_planner("expert")
+    groups, blocks, records, problems, results_all = {}, {}, [], [], []
+    print(f"evaluating {planner.name}: " + ", ".join(f"{len(s.problems)} {s.name} problems" for s in sections),
+          flush=True)
+    for section in sections:
+        results = _evaluate_section(planner, section, cfg, expert)
+        straight = results.get("straight") or results[planner.name]
+        for group, rows in _group_rows(section, _hard(straight["records"])).items():
+            groups[group] = {"source": section.source + ("" if group == section.name else f"; subset {group}"),
+                             "problems": len(rows)}
+            for name, result in results.items():
+                blocks.setdefault(name, {})[group] = summarize([result["records"][i] for i in rows], cfg.rollout())
+        for name, result in results.items():
+            records += [{**r, "group": section.name} for r in result["records"]]
+        problems += section.problems
+        results_all.append(results)
+        if section.reconstruction is not None:
+            print("  " + section.reconstruction.summary())
+    report = {"protocol": PROTOCOL, "planner": planner.name, "run": str(run_path) if run_path else None,
+              "dataset": dataset, "benchmark": benchmark, "groups": groups, "metrics": blocks[planner.name],
+              "expert": blocks.get("expert"), "straight": blocks.get("straight")}
+    return _write(out, cfg, report, planner, problems, records, results_all, sections)
+
+
+def _merged(results_all: list[dict], name: str) -> dict | None:
+    """One planner's results over every section, as one `evaluate` result (for the recording)."""
+    parts = [r[name] for r in results_all if name in r]
+    return {"planner": name, "records": [rec for p in parts for rec in p["records"]],
+            "metrics": {k: v for p in parts for k, v in p["metrics"].items()}} if parts else None
+
+
+def _write(out: Path, cfg, report: dict, planner, problems: list, records: list[dict], results_all: list[dict],
+           sections: list[Section]) -> dict:
+    """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`."""
     from dataclasses import asdict
 
     from samp.eval.metrics import markdown_table
-    from samp.eval.names import ALL_SPLITS, METRICS_JSON, METRICS_MD, PROBLEMS_JSONL, RECORDING_RRD
+    from samp.names import METRICS_JSON, METRICS_MD, PROBLEMS_JSONL, RECONSTRUCTION_RRD, RECORDING_RRD
     from samp.provenance import code_version
 
-    pooled = len(counts) > 1  # with one split, "all" repeats it
-    rows = [(r["planner"], s, m) for r in filter(None, (result, expert, *others)) for s, m in r["metrics"].items()
-            if s != ALL_SPLITS or pooled]
+    rows = [(name, group, report[block][group]) for group in report["groups"]
+            for name, block in ((report["planner"], "metrics"), ("expert", "expert"), ("straight", "straight"))
+            if report.get(block) and group in report[block] and (block == "metrics" or name != report["planner"])]
     table = markdown_table(rows, cfg.rollout())
-    report = {"planner": result["planner"], "run": str(run_path) if run_path else None, "dataset": f"{ds.name}@{ds.id}",
-              "problems": counts, "metrics": result["metrics"], "expert": None if expert is None else expert["metrics"],
-              **{o["planner"]: o["metrics"] for o in others},
-              "config": asdict(cfg), "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-              "code_version": code_version()}
-    if reconstruction is not None:
-        report["reconstruction"] = reconstruction.report()
+    sources = "\n".join(f"- {g}: {v['source']}" for g, v in report["groups"].items() if not g.endswith(HARD))
+    report.update(config=asdict(cfg), created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                  code_version=code_version())
+    reconstructions = [s.reconstruction for s in sections if s.reconstruction is not None]
+    if reconstructions:
+        report["reconstruction"] = reconstructions[0].report()
     (out / METRICS_JSON).write_text(json.dumps(report, indent=2))
-    (out / METRICS_MD).write_text(f"# {result['planner']} on {ds.name}@{ds.id}\n\n{table}")
+    title = f"# {report['planner']} (evaluation protocol {PROTOCOL})"
+    (out / METRICS_MD).write_text(f"{title}\n\n{sources}\n\n{table}")
     with open(out / PROBLEMS_JSONL, "w") as f:
-        for rec in result["records"] + ([] if expert is None else expert["records"]) + [r for o in others for r in o["records"]]:
+        for rec in records:
             f.write(json.dumps(rec) + "\n")
-    print("\n" + table)
+    print("\n" + sources + "\n\n" + table)
     written = [METRICS_JSON, METRICS_MD, PROBLEMS_JSONL]
     if cfg.record:
         from samp.eval.recording import write_recording
 
-        path = write_recording(out / RECORDING_RRD, problems, result, expert, robot=getattr(planner, "robot", None),
+        path = write_recording(out / RECORDING_RRD, problems, _merged(results_all, planner.name),
+                               _merged(results_all, "expert"), robot=getattr(planner, "robot", None),
                                record_rollouts=cfg.record_rollouts, record_points=cfg.record_points, metrics_md=table)
         written.append(f"{RECORDING_RRD} ({path.stat().st_size / 1e6:.1f} MB; open with `rerun {path}`)")
-        if reconstruction is not None and reconstruction.scenes:
-            from samp.eval.names import RECONSTRUCTION_RRD
+        if reconstructions and reconstructions[0].scenes:
             from samp.perception.viz import write_reconstruction_recording
 
-            path = write_reconstruction_recording(out / RECONSTRUCTION_RRD, reconstruction.scenes, reconstruction.cameras)
+            path = write_reconstruction_recording(out / RECONSTRUCTION_RRD, reconstructions[0].scenes,
+                                                  reconstructions[0].cameras)
             written.append(f"{RECONSTRUCTION_RRD} ({path.stat().st_size / 1e6:.1f} MB)")
     print(f"wrote {out}: " + ", ".join(written))
     return report

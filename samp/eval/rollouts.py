@@ -9,14 +9,15 @@ reaching and colliding are judged independently, as DESIGN section 4 defines the
 
 Timing: each `step` call (and `reset`, if the policy has one) is timed with the device synchronised;
 a problem's solution time is the wall time of the calls it took part in. With `batch_size` 1 that is
-its own planning latency; in a batch it is the batch's latency (the per-problem share is smaller).
+its own planning latency; in a batch it is the batch's latency (the per-problem share is smaller), and
+the batch's size / `batch_time` is the batched throughput.
 Goal checks and collision checks are not timed: they are the simulator's work, not the planner's.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -39,6 +40,8 @@ class RolloutResult:
     step_times: list[float]  # seconds per step call
     position_error: float | None  # final, metres (None: a planner that gave no trajectory)
     orientation_error: float | None  # final, degrees
+    batch: int = 0  # which rollout batch it was in
+    batch_time: float | None = None  # seconds the policy spent on that whole batch (throughput = size / time)
 
 
 def _sync(device: torch.device) -> None:
@@ -167,6 +170,8 @@ def rollout(policy, problems: list[Problem], cfg: RolloutConfig, grid_source: Gr
     checker_robot = checker_robot or exact_robot(policy.robot)
     size = cfg.batch_size or len(problems)
     out: list[RolloutResult] = []
-    for i in range(0, len(problems), size):
-        out += _rollout_batch(policy, problems[i:i + size], cfg, checker_robot, grid_source or scene_grids)
+    for k, i in enumerate(range(0, len(problems), size)):
+        batch = _rollout_batch(policy, problems[i:i + size], cfg, checker_robot, grid_source or scene_grids)
+        wall = max(r.solution_time for r in batch)  # every call of the batch had its longest-running problem in it
+        out += [replace(r, batch=k, batch_time=wall) for r in batch]
     return out

@@ -1,8 +1,10 @@
 """What the recipe does with a model once it is trained, in memory (no reload from disk, no second config):
 
-* a policy (`PolicySystemBase`): roll it out on `evaluation.problems` problems per split of its own
-  dataset, beside the expert and the straight line, into `<run>/eval/` (the same files and format as
-  `python -m samp.eval run=RUN`), then a summary plot `<run>/plots/summary.png`;
+* a policy (`PolicySystemBase`): evaluate it under the evaluation protocol (`samp.eval.report`) — the
+  stored evaluation problems of its dataset's validation and training scenes (`evaluation.problems` per
+  split) and the standing benchmark (`evaluation.benchmark`), beside the expert and the straight line —
+  into `<run>/eval/` (the same files and format as `python -m samp.eval run=RUN`), then a summary plot
+  `<run>/plots/summary.png`;
 * a robot SDF (`RobotSDFSystem`): export `robot_sdf.pt` and, with a `robot_sdf_eval` config, the
   Table III evaluation files.
 
@@ -18,29 +20,42 @@ __all__ = ["after_fit", "evaluate_policy", "export_robot_sdf"]
 
 
 def _flat(report: dict, name: str) -> dict[str, float]:
-    """`eval/<planner>/<split>/<metric>` for the metrics the registry flattens into run.json."""
-    from samp.eval.metrics import flat_metrics
+    """`eval/<planner>/<group>/<key>` for the metrics the registry flattens into run.json, each rate with
+    its interval (`<rate>_ci_low`, `<rate>_ci_high`)."""
+    from samp.eval.metrics import flat_metrics, metric_keys
     from samp.names import EVAL_PREFIX
 
-    return {f"{EVAL_PREFIX}{planner}/{split}/{metric}": float(m[metric])
-            for planner, key in ((name, "metrics"), ("expert", "expert"), ("straight", "straight"))
-            for split, m in (report.get(key) or {}).items() for metric in flat_metrics() if m.get(metric) is not None}
+    rates = set(metric_keys(rate=True))
+    keys = [k for key in flat_metrics() for k in ([key, f"{key}_ci_low", f"{key}_ci_high"] if key in rates else [key])]
+    return {f"{EVAL_PREFIX}{planner}/{group}/{key}": float(m[key])
+            for planner, block in ((name, "metrics"), ("expert", "expert"), ("straight", "straight"))
+            for group, m in (report.get(block) or {}).items() for key in keys if m.get(key) is not None}
 
 
-def evaluate_policy(system, datamodule, run_dir: Path, problems: int) -> dict:
-    """The trained policy `system` on `problems` problems per split of `datamodule`'s dataset, with the
-    expert and the straight line beside it; writes `<run_dir>/eval/` and the summary plot."""
+def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
+    """The trained policy `system` under the evaluation protocol: the stored evaluation problems of its
+    dataset's validation and training scenes (`evaluation.problems` per split) and the standing benchmark
+    (`evaluation.benchmark`), with the expert and the straight line beside it; writes `<run_dir>/eval/`
+    and the summary plot."""
+    from samp.eval.benchmark import open_benchmark
     from samp.eval.config import load_eval_config
-    from samp.eval.report import evaluate_on_dataset
+    from samp.eval.report import evaluate_sections, protocol_sections
     from samp.names import EVAL_DIR, PLOTS_DIR, SUMMARY_PNG
 
-    if not problems:
+    if not evaluation.problems and not evaluation.benchmark:
         return {}
-    cfg = load_eval_config({"problems": int(problems), "compare_straight": True, "overwrite": True})
+    ds = datamodule.ds
+    cfg = load_eval_config({"problems": int(evaluation.problems or 1), "splits": ["val", "train"] if evaluation.problems
+                            else [], "benchmark": evaluation.benchmark, "overwrite": True,
+                            "root": str(Path(ds.path).parents[1])})
+    bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
+    system.eval()
+    planner = system.planner()
+    sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot, trained=ds)
     out = Path(run_dir) / EVAL_DIR
     out.mkdir(parents=True, exist_ok=True)
-    system.eval()
-    report = evaluate_on_dataset(system.planner(), datamodule.ds, cfg, out, Path(run_dir))
+    report = evaluate_sections(planner, sections, cfg, out, run_path=Path(run_dir), dataset=f"{ds.name}@{ds.id}",
+                               benchmark=None if bench is None else f"{bench.name}@{bench.id}")
     try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
         from samp.runs.plots import plot_run_summary
         from samp.runs.registry import load_run
@@ -78,7 +93,7 @@ def after_fit(cfg, system, datamodule, run_dir: Path) -> dict:
     from samp.robot_sdf.system import RobotSDFSystem
 
     if isinstance(system, PolicySystemBase):
-        return evaluate_policy(system, datamodule, run_dir, cfg.evaluation.problems)
+        return evaluate_policy(system, datamodule, run_dir, cfg.evaluation)
     if isinstance(system, RobotSDFSystem):
         evaluation = cfg.get("robot_sdf_eval")
         return export_robot_sdf(system, run_dir, None if evaluation is None else OmegaConf.to_container(evaluation))

@@ -33,8 +33,8 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
-from samp.runs.distributed import is_rank_zero
 from samp.cli import canonical_overrides
+from samp.runs.distributed import is_rank_zero
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import override_key
 

@@ -189,22 +189,27 @@ def test_the_float64_copy_of_a_float32_robot_keeps_its_exact_limits(panda):
 
 # ---------------------------------------------------------------- the metric registry pins today's output
 def _problem(reached: tuple[bool, bool], length, time, steps: list[float], termination: str = "reached",
-             collision: float | None = None, self_collision: bool = False, limits: bool = False) -> dict:
-    """A hand-made record: `reached` at (2cm, 1cm), `collision` the penetration depth when it collided."""
+             collision: float | None = None, self_collision: bool = False, limits: bool = False,
+             batch: tuple[int, float] = (0, 1.0), alone: tuple[float, list[float]] | None = None) -> dict:
+    """A hand-made record: `reached` at (2cm, 1cm), `collision` the penetration depth when it collided,
+    `batch` (index, seconds) of its rollout batch, `alone` its (solution time, step times) at B = 1."""
     return {"reached": {"2cm": reached[0], "1cm": reached[1]}, "collision": collision is not None,
             "self_collision": self_collision, "joint_limit_violation": limits, "path_length": length,
             "solution_time": time, "step_times": steps, "steps": len(steps),
-            "collision_depth": 0.0 if collision is None else collision, "termination": termination}
+            "collision_depth": 0.0 if collision is None else collision, "termination": termination,
+            "batch": batch[0], "batch_time": batch[1], "solution_time_b1": None if alone is None else alone[0],
+            "step_times_b1": [] if alone is None else alone[1]}
 
 
-# Six problems, the expected metrics worked out by hand below.
+# Six problems in two batches (0.6 s and 0.8 s), two of them also timed alone; the expected metrics are
+# worked out by hand below.
 PINNED = [
-    _problem((True, True), 1.0, 0.2, [0.01, 0.03]),                        # success at 2 and 1 cm
-    _problem((True, False), 2.0, 0.4, [0.02]),                             # success at 2 cm only
-    _problem((True, True), 4.0, 0.6, [0.04], collision=0.05),              # reached, collided
-    _problem((False, False), None, None, [0.02, 0.02, 0.02], "stalled", self_collision=True),
-    _problem((True, False), 3.0, 0.8, [0.02, 0.02], collision=0.03, limits=True),
-    _problem((False, False), 5.0, None, [0.06], "max_steps"),
+    _problem((True, True), 1.0, 0.2, [0.01, 0.03], batch=(0, 0.6), alone=(0.1, [0.005, 0.015])),  # success 2, 1 cm
+    _problem((True, False), 2.0, 0.4, [0.02], batch=(0, 0.6), alone=(0.3, [0.01])),  # success at 2 cm only
+    _problem((True, True), 4.0, 0.6, [0.04], collision=0.05, batch=(0, 0.6)),        # reached, collided
+    _problem((False, False), None, None, [0.02, 0.02, 0.02], "stalled", self_collision=True, batch=(1, 0.8)),
+    _problem((True, False), 3.0, 0.8, [0.02, 0.02], collision=0.03, limits=True, batch=(1, 0.8)),
+    _problem((False, False), 5.0, None, [0.06], "max_steps", batch=(1, 0.8)),
 ]
 
 
@@ -256,6 +261,10 @@ def test_summarize_keeps_its_keys_order_and_values():
         "path_length_all_mean": 3.0, "path_length_all_std": np.sqrt(2.0),
         "solution_time_mean": 0.5, "solution_time_std": np.sqrt(0.05),
         "inference_time_mean": 0.026, "inference_time_std": np.sqrt(0.00184 / 10),
+        # B = 1: solution times {0.1, 0.3}; step times {0.005, 0.015, 0.01}; 6 problems in 0.6 + 0.8 s batched
+        "solution_time_b1_mean": 0.2, "solution_time_b1_std": 0.1,
+        "step_time_b1_mean": 0.01, "step_time_b1_std": np.sqrt(0.00005 / 3),
+        "timed_problems": 2, "throughput": 6 / 1.4,
         "steps_mean": 10 / 6,
         "collision_depth_mean": 0.04, "collision_depth_max": 0.05,
         "terminations": {"reached": 4, "stalled": 1, "max_steps": 1},
@@ -286,22 +295,26 @@ def test_markdown_table_keeps_its_header_cells_and_note():
     cfg = RolloutConfig()
     table = markdown_table([("samp", "heldout", summarize(PINNED, cfg)), ("expert", "train", {})], cfg)
     # soln. time 0.5 ± sqrt(0.05) = 0.2236; path length 1.5 ± 0.5; rates in percent to one decimal;
-    # step time 26 ± 1e3 * sqrt(0.000184) = 13.565 ms; rates with their Wilson intervals (2/6: [9.7, 70.0],
-    # 1/6: [3.0, 56.4], 4/6: [30.0, 90.3])
+    # step time at B = 1: 10 ± 1e3 * sqrt(0.00005 / 3) = 4.08 ms; soln. time at B = 1: 0.2 ± 0.1 s; batched:
+    # 6 / 1.4 s = 4.3 problems/s; rates with their Wilson intervals (2/6: [9.7, 70.0], 1/6: [3.0, 56.4],
+    # 4/6: [30.0, 90.3])
     expected = (
-        "| planner | split | problems | soln. time [s] | path length [m] | success@2cm [%] | success@1cm [%] "
-        "| reach@2cm [%] | reach@1cm [%] | collision [%] | self-coll. [%] | joint limits [%] | step [ms] |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
-        "| samp | heldout | 6 | 0.500 ± 0.224 | 1.50 ± 0.50 | 33.3 [9.7, 70.0] | 16.7 [3.0, 56.4] | 66.7 [30.0, 90.3] "
-        "| 33.3 [9.7, 70.0] | 33.3 [9.7, 70.0] | 16.7 [3.0, 56.4] | 16.7 [3.0, 56.4] | 26.00 ± 13.56 |\n"
-        "| expert | train | 0 | - | - | - | - | - | - | - | - | - | - |\n"
+        "| planner | split | problems | soln. time B=1 [s] | path length [m] | success@2cm [%] | success@1cm [%] "
+        "| reach@2cm [%] | reach@1cm [%] | collision [%] | self-coll. [%] | joint limits [%] | step B=1 [ms] "
+        "| batched [problems/s] |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+        "| samp | heldout | 6 | 0.200 ± 0.100 | 1.50 ± 0.50 | 33.3 [9.7, 70.0] | 16.7 [3.0, 56.4] | 66.7 [30.0, 90.3] "
+        "| 33.3 [9.7, 70.0] | 33.3 [9.7, 70.0] | 16.7 [3.0, 56.4] | 16.7 [3.0, 56.4] | 10.00 ± 4.08 | 4.3 |\n"
+        "| expert | train | 0 | - | - | - | - | - | - | - | - | - | - | - |\n"
         "\n"
         "Reached: end-effector within 2cm and 15 deg at the end of the rollout (which stops at 2cm); success: "
         "reached with no collision, self-collision or joint-limit violation. Rates: percent [Wilson 95 % interval]. "
-        "Path length: mean ± std over successful problems; times over all problems.\n")
+        "Path length: mean ± std over successful problems. Solution and step time: one problem at a time (B = 1), "
+        "over the problems timed so; batched: problems per second in the batched rollouts the outcomes come from.\n")
     assert table == expected, f"expected\n{expected}\ngot\n{table}"
-    assert TABLE_COLUMNS == ["planner", "split", "problems", "soln. time [s]", "path length [m]", "success [%]",
-                             "reach [%]", "collision [%]", "self-coll. [%]", "joint limits [%]", "step [ms]"]
+    assert TABLE_COLUMNS == ["planner", "split", "problems", "soln. time B=1 [s]", "path length [m]", "success [%]",
+                             "reach [%]", "collision [%]", "self-coll. [%]", "joint limits [%]", "step B=1 [ms]",
+                             "batched [problems/s]"]
 
 
 def test_the_registry_names_what_each_consumer_used_to_list():
@@ -313,12 +326,14 @@ def test_the_registry_names_what_each_consumer_used_to_list():
         "success_rate", "reach_rate", "collision_rate", "self_collision_rate", "joint_limit_rate", "path_length_mean",
         "solution_time_mean", "inference_time_mean", "steps_mean")
     assert MONITOR == "success_rate"
-    assert flat_metrics() == ("success_rate", "reach_rate", "collision_rate", "path_length_mean", "solution_time_mean")
+    # run.json: the rates, the path length, and the times as the paper's tables give them (B = 1), throughput
+    assert flat_metrics() == ("success_rate", "reach_rate", "collision_rate", "path_length_mean",
+                              "solution_time_b1_mean", "step_time_b1_mean", "throughput")
     assert metric_keys(flat=True, rate=True) == ("success_rate", "reach_rate", "collision_rate")
     assert metric_keys(curve=True) == ("success_rate", "reach_rate")
-    assert [m.name for m in table_metrics()] == ["solution_time", "path_length", "success_rate", "reach_rate",
+    assert [m.name for m in table_metrics()] == ["solution_time_b1", "path_length", "success_rate", "reach_rate",
                                                  "collision_rate", "self_collision_rate", "joint_limit_rate",
-                                                 "inference_time"]
+                                                 "step_time_b1", "throughput"]
 
 
 def test_the_registry_refuses_unknown_names_and_bad_definitions():
@@ -329,7 +344,7 @@ def test_the_registry_refuses_unknown_names_and_bad_definitions():
         metric("sucess_rate")
     with pytest.raises(ValueError, match="stats must be one of"):
         Metric("odd", recorded("steps"), "median")
-    with pytest.raises(ValueError, match="a table column shows a rate or a mean_std"):
+    with pytest.raises(ValueError, match="a table column shows a rate, a mean_std or a throughput"):
         Metric("odd", recorded("termination"), "counts", column=Column("odd", "%", digits=1, rank=99))
     with pytest.raises(ValueError, match="logged=True"):
         Metric("odd", recorded("collision"), "rate", curve=True)
@@ -341,14 +356,14 @@ def test_a_metric_added_to_the_registry_reaches_summarize_and_the_table(monkeypa
     from samp.eval.metrics import METRICS, Column, Metric, markdown_table
 
     stall = Metric("stall_rate", lambda r, tol: r["termination"] == "stalled", "rate",
-                   column=Column("stalled", "%", digits=1, rank=90), logged=True)
+                   column=Column("stalled", "%", digits=1, rank=95), logged=True)
     monkeypatch.setattr(metrics, "METRICS", (*METRICS, stall))
     m = summarize(PINNED, RolloutConfig())
     assert list(m)[-4:] == ["terminations", "stall_rate", "stall_rate_ci_low", "stall_rate_ci_high"]
     assert m["stall_rate"] == pytest.approx(1 / 6) and m["stall_rate_ci_low"] == pytest.approx(_wilson(1, 6)[0])
     assert metrics.logged_metrics()[-1] == "stall_rate"
     lines = markdown_table([("samp", "heldout", m)], RolloutConfig()).splitlines()
-    assert lines[0].endswith("| step [ms] | stalled [%] |") and lines[2].endswith("| 26.00 ± 13.56 | 16.7 [3.0, 56.4] |"), lines
+    assert lines[0].endswith("| step B=1 [ms] | batched [problems/s] | stalled [%] |") and lines[2].endswith("| 10.00 ± 4.08 | 4.3 | 16.7 [3.0, 56.4] |"), lines
 
 
 def test_the_metrics_module_stays_below_samp_runs():

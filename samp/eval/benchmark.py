@@ -1,0 +1,67 @@
+"""The standing benchmark: named, versioned sets of unseen scenes with stored evaluation problems.
+
+`benchmark=NAME` is the dataset spec `conf/dataset/bench_NAME.yaml`: test scenes only, from every scene
+generator, in a scene namespace of its own (so no training spec draws the same scenes), with the
+expert's solution and planning time stored for every problem. It is generated once, like any dataset,
+and then found by name; its id (`bench_NAME@id`) goes into every report that uses it.
+
+Whether a scene is unseen is decided by content, not by seeds: `check_unseen` refuses to report a
+test or benchmark problem whose scene (by its content hash) was among the training or validation scenes of
+the dataset the run trained on.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["BENCHMARK_PREFIX", "benchmark_spec", "check_unseen", "open_benchmark", "trained_scene_hashes"]
+
+BENCHMARK_PREFIX = "bench_"
+HELD_OUT_SECTIONS = ("test", "benchmark")  # sections that claim scenes the run never saw
+
+
+def benchmark_spec(name: str) -> str:
+    """`unseen` -> `bench_unseen`, checked to exist in conf/dataset/."""
+    from samp.data import available_specs
+
+    spec = f"{BENCHMARK_PREFIX}{name}"
+    if spec not in available_specs():
+        known = [s.removeprefix(BENCHMARK_PREFIX) for s in available_specs() if s.startswith(BENCHMARK_PREFIX)]
+        raise ValueError(f"unknown benchmark {name!r}: no conf/dataset/{spec}.yaml; benchmarks: {', '.join(known)}")
+    return spec
+
+
+def open_benchmark(name: str, root: str | Path | None = None, workers: int = 2):
+    """The benchmark's dataset, generated first (once) when it is not built yet."""
+    from samp.data import DatasetError, generate, open_dataset
+
+    spec = benchmark_spec(name)
+    root = Path(root) if root else None
+    try:
+        return open_dataset(spec, root)
+    except DatasetError:
+        print(f"benchmark {name!r} is not built yet: generating {spec} from conf/dataset/{spec}.yaml once "
+              f"(expert solutions for every problem, {workers} workers)", flush=True)
+        return open_dataset(generate(spec, workers=workers, root=root))
+
+
+def trained_scene_hashes(ds) -> set[str]:
+    """Content hashes of the scenes a model trained on `ds` has seen: its training and validation scenes."""
+    return {h for h, split in zip(ds.scene_hashes, ds.scene_split) if split in ("train", "val")}
+
+
+def check_unseen(sections, seen: set[str], trained_on: str) -> None:
+    """Refuse test and benchmark sections holding a scene the run trained or validated on (by content
+    hash): reported as held out, such a problem would measure recall, not generalisation."""
+    for section in sections:
+        if section.name not in HELD_OUT_SECTIONS:
+            continue
+        clash = sorted({p.scene.name for p in section.problems if _scene_hash(p) in seen})
+        if clash:
+            raise ValueError(f"the {section.name} section holds {len(clash)} scene(s) that {trained_on} trained or "
+                             f"validated on ({', '.join(clash[:5])}); they cannot be reported as unseen. Evaluate on "
+                             "a benchmark whose scenes the run never saw (benchmark=unseen), or drop that section")
+
+
+def _scene_hash(problem) -> str:
+    return getattr(problem, "scene_hash", None) or problem.scene.content_hash()

@@ -1,0 +1,122 @@
+"""The evaluation protocol (samp.eval.report): sections with one job each, the hard subset from the
+straight line, intervals and B = 1 times in metrics.json, the expert row from stored solutions, and the
+refusal to report a scene the run trained on as unseen (by content hash)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from samp.data import generate, open_dataset
+
+DATA = {"name": "proto_data", "robot": "panda", "seed": 5, "train_scenes": 1, "val_scenes": 1, "test_scenes": 0,
+        "trajectories_per_scene": 2, "eval_problems_per_scene": 3, "generators": ["tabletop", "shelf"],
+        "resolutions": [12]}
+BENCH = {"name": "proto_bench", "robot": "panda", "seed": 5, "scene_namespace": "tests/proto_bench", "train_scenes": 0,
+         "val_scenes": 0, "test_scenes": 2, "trajectories_per_scene": 0, "eval_problems_per_scene": 3,
+         "generators": ["tabletop", "shelf"], "resolutions": [12]}
+
+
+@pytest.fixture(scope="module")
+def datasets(tmp_path_factory, _isolated_cache):
+    root = tmp_path_factory.mktemp("protocol")
+    return (open_dataset(generate(DATA, root=root, progress=False)),
+            open_dataset(generate(BENCH, root=root, progress=False)))
+
+
+def _config(**kw):
+    from samp.eval.config import load_eval_config
+
+    return load_eval_config({"problems": None, "record": False, "timed_problems": 2, "overwrite": True, **kw})
+
+
+class Line:
+    """The straight line under another name, as "the planner": its records must equal the straight row's."""
+
+    def __init__(self, robot):
+        from samp.eval.planners import StraightLinePolicy
+
+        self._line = StraightLinePolicy(robot)
+        self.robot, self.n_e, self.name = robot, None, "line"
+
+    def step(self, q, q_goal, env):
+        return self._line.step(q, q_goal, env)
+
+
+@pytest.fixture(scope="module")
+def report(datasets, panda, tmp_path_factory):
+    from samp.eval.report import evaluate_sections, protocol_sections
+
+    ds, bench = datasets
+    cfg = _config()
+    sections = protocol_sections(cfg, ds, bench, panda, trained=ds)
+    out = tmp_path_factory.mktemp("out")
+    evaluate_sections(Line(panda), sections, cfg, out, dataset=f"{ds.name}@{ds.id}", benchmark=f"{bench.name}@{bench.id}")
+    return json.loads((out / "metrics.json").read_text()), [json.loads(x) for x in open(out / "problems.jsonl")]
+
+
+def test_sections_hold_the_stored_evaluation_problems_of_their_scenes(datasets, report):
+    ds, bench = datasets
+    data, records = report
+    assert data["protocol"] == 2 and data["benchmark"] == f"{bench.name}@{bench.id}"
+    assert {g: v["problems"] for g, v in data["groups"].items() if not g.endswith("_hard")} == {
+        "val": 3, "train": 3, "benchmark": 6, "benchmark_tabletop": 3, "benchmark_shelf": 3}
+    # every problem is one of the datasets' stored evaluation problems, not a training demonstration
+    stored = {tuple(np.round(p["start"], 9)) + tuple(np.round(p["goal"], 9)) for p in ds.eval_problems + bench.eval_problems}
+    demos = {tuple(np.round(t[0].numpy(), 9)) + tuple(np.round(t[-1].numpy(), 9)) for t in ds.trajectories}
+    keys = {tuple(np.round(r["q_start"], 9)) + tuple(np.round(r["q_goal"], 9)) for r in records}
+    assert keys <= stored and not keys & demos
+    assert {r["group"] for r in records} == {"val", "train", "benchmark"}
+    assert {r["planner"] for r in records} == {"line", "expert", "straight"}, "the expert and the line are always rows"
+
+
+def test_the_hard_subset_is_where_the_straight_line_collides(report):
+    data, records = report
+    for section in ("val", "train", "benchmark"):
+        straight = [r for r in records if r["planner"] == "straight" and r["group"] == section]
+        hard = sum(r["collision"] for r in straight)
+        assert data["groups"][f"{section}_hard"]["problems"] == hard
+        if hard:  # the line, rolled out as "the planner", collides on exactly those problems
+            assert data["metrics"][f"{section}_hard"]["collision_rate"] == 1.0
+            assert data["straight"][f"{section}_hard"]["success_rate"] == 0.0
+
+
+def test_every_rate_has_its_interval_and_times_are_per_problem(report):
+    from samp.eval.metrics import wilson_interval
+
+    data, _ = report
+    m = data["metrics"]["benchmark"]
+    k = round(m["success_rate"] * m["problems"])
+    assert (m["success_rate_ci_low"], m["success_rate_ci_high"]) == pytest.approx(wilson_interval(k, m["problems"]))
+    for block in ("metrics", "expert", "straight"):
+        for group, g in data[block].items():
+            for rate in ("success_rate", "reach_rate", "collision_rate"):
+                if g.get("problems"):
+                    assert g[rate + "_ci_low"] <= g[rate] <= g[rate + "_ci_high"], (block, group, rate)
+    assert m["timed_problems"] == 2 and m["solution_time_b1_mean"] > 0 and m["step_time_b1_mean"] > 0
+    assert m["throughput"] > 0
+    expert = data["expert"]["benchmark"]
+    assert expert["timed_problems"] == 6, "the expert answers one problem at a time: its planning times"
+
+
+def test_a_benchmark_scene_the_run_trained_on_is_refused(datasets, panda):
+    """A dataset evaluated as its own 'benchmark': its scenes are the training ones, by content hash."""
+    from samp.eval.report import protocol_sections
+
+    ds, bench = datasets
+    with pytest.raises(ValueError, match="trained or validated on.*cannot be reported as unseen"):
+        protocol_sections(_config(splits=[]), None, ds_as_test(ds), panda, trained=ds)
+    protocol_sections(_config(splits=[]), None, bench, panda, trained=ds)  # unseen scenes pass
+    assert not set(bench.scene_hashes) & set(ds.scene_hashes)
+
+
+def ds_as_test(ds):
+    """The same dataset with every scene relabelled as a test scene (what a careless spec could produce)."""
+    import copy
+
+    clone = copy.copy(ds)
+    clone.scene_split = ["test"] * len(ds.scene_split)
+    clone.eval_problems = [{**p, "split": "test"} for p in ds.eval_problems]
+    return clone

@@ -3,17 +3,18 @@ the paper's tables.
 
 usage: python -m samp.runs COMMAND [key=value ...]
   ls [KEY=VALUE ...] [root=DIR] [keys=K,K]         runs under runs/ (or root), filtered by any key
-  show RUN                                         one run's record: status, lineage, metrics, files
+  show RUN                                         one run's record: status, lineage, protocol, metrics, files
   compare RUN RUN ... [metrics=M,M]                side by side: lineage, differing config, metrics
-  table DIR by=KEY [metrics=M,M] [out=PREFIX]      one row per value of KEY (mean ± std), .md and .csv
+  table DIR by=KEY [metrics=M,M] [out=PREFIX]      one row per value of KEY (mean ± std [interval]), .md and .csv
   plot DIR by=KEY [metrics=M,M] [kind=curves|bars] [x=epoch|step] [out=FILE.png]
                                                    learning curves from metrics.csv, or bars of final metrics
-  paper-tables [root=DIR] [out=DIR]                Table I and Table II from the runs that exist
+  paper-tables [root=DIR] [out=DIR]                Table I and Table II on the benchmark, from the runs that exist
 
 RUN and DIR are run folders (also run=RUN, dir=DIR). Keys are config keys (datamodule.n_e, name), record
-keys (status, seed, dataset_id) and metrics (val/loss, eval/samp/heldout/success_rate); in `ls`, every
-KEY=VALUE other than root= and keys= is a filter. Tables and plots go beside the runs unless out= says
-where. The older spellings (--by KEY, --metrics M M, --out, --root, --keys, --kind, --x) still work.
+keys (status, seed, dataset_id, protocol) and metrics (val/loss, eval/samp/benchmark/success_rate); in `ls`,
+every KEY=VALUE other than root= and keys= is a filter. Rates with a recorded interval show in percent
+as "rate [low, high]" (Wilson 95 %). Tables and plots go beside the runs unless out= says where. The
+older spellings (--by KEY, --metrics M M, --out, --root, --keys, --kind, --x) still work.
 """
 
 from __future__ import annotations
@@ -73,6 +74,7 @@ def _by(command: str, opts: dict) -> str:
 
 
 def _ls(args: list[str]) -> None:
+    from samp.runs.protocol import label
     from samp.runs.registry import matches
     from samp.runs.tables import list_table, markdown
 
@@ -80,6 +82,8 @@ def _ls(args: list[str]) -> None:
     runs = [r for r in _runs(opts.get("root")) if matches(r, filters)]
     header, rows = list_table(runs, opts.get("keys", []))
     print(markdown(header, rows) + f"\n{len(rows)} run(s)")
+    for protocol in sorted({r.protocol for r in runs if r.protocol is not None}, reverse=True):
+        print(f"protocol {label(protocol)}")
 
 
 def _show(args: list[str]) -> None:
@@ -141,11 +145,9 @@ def _paper_tables(args: list[str]) -> None:
     root = _root(opts.get("root"))
     runs = find_runs(root) if root.is_dir() else []
     out = Path(opts["out"]) if opts.get("out") else root / "paper_tables"
-    titles = {"table_1": "Table I: motion planning (training / held-out scenes)",
-              "table_2": "Table II: anchor size (n_e per axis)"}
-    for name, (header, rows) in paper_tables(runs, root).items():
-        print(f"{titles[name]}\n\n{markdown(header, rows)}")
-        print("wrote " + ", ".join(str(p) for p in write_table(out / name, header, rows, titles[name])) + "\n")
+    for name, (title, header, rows, note) in paper_tables(runs, root).items():
+        print(f"{title}\n\n{markdown(header, rows)}\n{note}\n")
+        print("wrote " + ", ".join(str(p) for p in write_table(out / name, header, rows, title, note)) + "\n")
 
 
 COMMANDS = {"ls": _ls, "show": _show, "compare": _compare, "table": _table, "plot": _plot,

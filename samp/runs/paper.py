@@ -1,12 +1,18 @@
-"""The paper's Table I (motion planning) and Table II (anchor size) from whatever runs exist.
+"""The paper's Table I (motion planning) and Table II (anchor size) from whatever runs exist, on the
+standing benchmark of unseen scenes (DESIGN section 4, "Splits and problems").
 
 Which run fills which row is data (`TABLE_I`, `TABLE_II`): a row names an experiment (conf/experiment/),
 and its newest completed run with an evaluation (`<run>/eval/metrics.json`, written after training or by
-`python -m samp.eval run=RUN_DIR`) fills it; a row without such a run shows a dash. The expert row reads
-the expert block of the SAMP runs' evaluations (the expert's trajectories on the same problems), else a
-stand-alone `python -m samp.eval planner=expert` result under `runs/eval/`. Cells are "training scenes /
-held-out scenes", as in the paper; rates in percent. Every table says which run each row came from, so a
-reader can check that the rows share a dataset.
+`python -m samp.eval run=RUN_DIR`) fills it, a run evaluated under the current protocol before any older
+one (`samp.runs.protocol`); a row without such a run shows dashes. The expert and straight-line rows read
+the expert and straight blocks of the SAMP runs' evaluations (their trajectories on the same problems),
+else a stand-alone `python -m samp.eval planner=expert` (or `planner=straight`) result under `runs/eval/`.
+
+Cells are the benchmark group's: solution time one problem at a time (B = 1), path length, rates in
+percent with their Wilson 95 % interval, and success on the benchmark's hard subset. A row filled by a
+protocol-1 run shows that evaluation's "training / held-out scenes" values as the paper had them, its
+label marked "(protocol 1: train / held-out)", never mixed silently with the benchmark's rows. Every table
+names the benchmark and the datasets its rows' runs used in its title, and the run of each row.
 """
 
 from __future__ import annotations
@@ -14,108 +20,195 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 from samp.eval.metrics import metric
+from samp.runs.protocol import (BENCHMARK, BENCHMARK_REF, CURRENT, SOLUTION_TIME_B1, STEP_TIME_B1, hard, interval_keys,
+                                protocol_of)
 from samp.runs.registry import Run
-from samp.runs.tables import DASH, fmt
+from samp.runs.tables import DASH, fmt, percent
 
-__all__ = ["Row", "TABLE_I", "TABLE_II", "paper_tables"]
+__all__ = ["PaperTable", "Row", "TABLE_I", "TABLE_II", "paper_tables"]
 
 
 @dataclass(frozen=True)
 class Row:
     """A table row: its label and the experiment whose run fills it (`planner`: which block of the run's
-    eval/metrics.json, "metrics" for the run's own policy, "expert" for the expert beside it)."""
+    eval/metrics.json, "metrics" for the run's own policy, "expert" or "straight" for those beside it)."""
 
     label: str
     experiments: tuple[str, ...]
     planner: str = "metrics"
 
 
+class PaperTable(NamedTuple):
+    """A table as `python -m samp.runs paper-tables` writes it: title, header, rows and a note below."""
+
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+    note: str
+
+
+SAMP_RUNS = ("samp_n100", "samp_n160")  # whose evaluations hold the expert and the straight line beside SAMP
 TABLE_I = (
-    Row("Expert (OMPL)", ("samp_n100", "samp_n160"), planner="expert"),
+    Row("Expert (OMPL)", SAMP_RUNS, planner="expert"),
+    Row("Straight line (joint space)", SAMP_RUNS, planner="straight"),
     Row("MPNet", ("mpnet",)),
     Row("MPiNet", ("mpinet",)),
     Row("SAMP (100 anchors)", ("samp_n100",)),
     Row("SAMP (160 anchors)", ("samp_n160",)),
 )
 TABLE_II = tuple(Row(str(n), (f"samp_n{n}",)) for n in (40, 70, 100, 130, 160))
-SPLITS = ("train", "heldout")
-# Table I's metric columns as the paper has them: (header, key in eval/metrics.json, scale, significant digits).
-TABLE_I_COLUMNS = (("soln. time [s]", metric("solution_time").key, 1.0, 3),
-                   ("path length [m]", metric("path_length").key, 1.0, 2),
-                   ("success [%]", metric("success_rate").key, 100.0, 3),
-                   ("collision [%]", metric("collision_rate").key, 100.0, 3))
-TABLE_II_RATES = tuple(metric(name).key for name in ("success_rate", "reach_rate", "collision_rate"))  # in percent
-INFERENCE_TIME = metric("inference_time").key  # seconds per policy step
+LEGACY_SPLITS = ("train", "heldout")  # protocol 1's cells: "training scenes / held-out scenes"
+LEGACY_MARK = " (protocol 1: train / held-out)"
+SUCCESS, REACH, COLLISION = (metric(name).key for name in ("success_rate", "reach_rate", "collision_rate"))
+PATH_LENGTH = metric("path_length").key
+# Table I's metric columns: (header, key in a benchmark summary, significant digits; a rate: None), and the
+# protocol-1 key of the same column (solution time then was not restricted to B = 1).
+TABLE_I_COLUMNS = (("soln. time, B = 1 [s]", SOLUTION_TIME_B1, 3, metric("solution_time").key),
+                   ("path length [m]", PATH_LENGTH, 2, PATH_LENGTH),
+                   ("success [%]", SUCCESS, None, SUCCESS),
+                   ("collision [%]", COLLISION, None, COLLISION))
+TABLE_II_RATES = (("success [%]", SUCCESS), ("reach [%]", REACH), ("collision [%]", COLLISION))
+LEGACY_STEP_TIME = metric("inference_time").key  # protocol 1: seconds per policy step
+NOTE = ("Benchmark cells: rates in percent [Wilson 95 % interval]; solution and step time one problem at a time "
+        "(B = 1); path length the mean over successful problems; hard subset: the problems whose straight "
+        "joint-space line collides.")
+LEGACY_NOTE = (" Rows marked (protocol 1) come from runs evaluated under the legacy protocol: their cells are "
+               "\"training scenes / held-out scenes\" of their dataset's demonstration problems, not the benchmark; "
+               "evaluate those runs again to put them on the benchmark.")
+
+
+@dataclass(frozen=True)
+class _Evaluation:
+    """What fills a row: an eval/metrics.json and where it came from (a run, or a stand-alone evaluation)."""
+
+    report: dict
+    source: str
+
+    @property
+    def protocol(self) -> int:
+        return protocol_of(self.report, {})
+
+    def block(self, planner: str) -> dict:
+        """The per-group metrics of `planner` ("metrics", "expert", "straight"); a stand-alone evaluation of
+        the expert or the straight line has them under "metrics"."""
+        if planner != "metrics" and self.report.get("planner") == planner:
+            planner = "metrics"
+        return self.report.get(planner) or {}
 
 
 def _newest_evaluated(runs: list[Run], experiments: tuple[str, ...]) -> Run | None:
-    """The newest completed run of any of `experiments` that has an evaluation."""
+    """The newest completed run of any of `experiments` that has an evaluation, under the newest protocol."""
     found = [r for r in runs if r.record.get("experiment") in experiments and r.status == "completed" and r.evaluation]
-    return max(found, key=lambda r: str(r.record.get("start") or "")) if found else None
+    return max(found, key=lambda r: (r.protocol or 0, str(r.record.get("start") or ""))) if found else None
 
 
-def _expert_alone(root: Path) -> tuple[dict | None, str]:
-    """The newest stand-alone expert evaluation under `<root>/eval/` (`python -m samp.eval planner=expert`)."""
+def _alone(root: Path, planner: str) -> _Evaluation | None:
+    """The newest stand-alone evaluation of `planner` under `<root>/eval/` (`python -m samp.eval planner=...`)."""
     reports = []
     for path in sorted((root / "eval").glob("*/metrics.json")):
         report = json.loads(path.read_text())
-        if report.get("planner") == "expert":
-            reports.append((str(report.get("created") or ""), report, path.parent))
+        if report.get("planner") == planner:
+            reports.append(((protocol_of(report, {}), str(report.get("created") or "")), report, path.parent))
     if not reports:
-        return None, DASH
+        return None
     _, report, folder = max(reports, key=lambda t: t[0])
-    return report["metrics"], f"{folder.name} ({report.get('dataset')})"
+    return _Evaluation(report, f"{folder.name} ({report.get('dataset')})")
 
 
-def _pair(block: dict | None, metric: str, scale: float = 1.0, digits: int = 3) -> str:
-    """"train / heldout" for one metric."""
-    cells = []
-    for split in SPLITS:
-        value = ((block or {}).get(split) or {}).get(metric)
-        cells.append(DASH if value is None else fmt(float(value) * scale, digits))
-    return " / ".join(cells)
+def _of_run(run: Run | None) -> _Evaluation | None:
+    if run is None:
+        return None
+    return _Evaluation(run.evaluation, f"{run.name} ({run.evaluation.get('dataset') or run.record.get('dataset_id')})")
 
 
-def _source(run: Run | None) -> str:
-    return DASH if run is None else f"{run.name} ({(run.evaluation or {}).get('dataset') or run.record.get('dataset_id')})"
+def _filling(row: Row, runs: list[Run], root: Path) -> _Evaluation | None:
+    """The evaluation that fills `row`: its run's; for the expert and the straight line, the run's if it
+    has that block, else a stand-alone one (also when that follows a newer protocol); None: no such one."""
+    found = _of_run(_newest_evaluated(runs, row.experiments))
+    if row.planner == "metrics":
+        return found
+    candidates = [e for e in (found, _alone(root, row.planner)) if e is not None and e.block(row.planner)]
+    return max(candidates, key=lambda e: e.protocol) if candidates else None
 
 
-def table_one(runs: list[Run], root: Path) -> tuple[list[str], list[list[str]]]:
-    header = ["method", *(title for title, *_ in TABLE_I_COLUMNS), "run"]
-    rows = []
+def _rate(summary: dict, key: str) -> str:
+    """A benchmark rate: "93.3 [84.1, 97.4]"."""
+    low, high = (summary.get(k) for k in interval_keys(key))
+    value = summary.get(key)
+    return percent(None if value is None else float(value), None if low is None or high is None else (low, high))
+
+
+def _value(summary: dict, key: str, digits: int) -> str:
+    value = summary.get(key)
+    return DASH if value is None else fmt(float(value), digits)
+
+
+def _pair(block: dict, key: str, scale: float = 1.0, digits: int = 3) -> str:
+    """Protocol 1: "train / heldout" for one metric."""
+    values = [(block.get(split) or {}).get(key) for split in LEGACY_SPLITS]
+    return " / ".join(DASH if v is None else fmt(float(v) * scale, digits) for v in values)
+
+
+def _title(name: str, filled: list[_Evaluation]) -> str:
+    """The table's name, the benchmark(s) and the datasets of its rows' runs."""
+    benchmarks = sorted({str(e.report.get(BENCHMARK_REF)) for e in filled if e.protocol >= CURRENT})
+    datasets = sorted({str(e.report.get("dataset")) for e in filled})
+    return (f"{name}, on the standing benchmark of unseen scenes (benchmark {', '.join(benchmarks) or DASH}; "
+            f"datasets {', '.join(datasets) or DASH})")
+
+
+def _note(filled: list[_Evaluation]) -> str:
+    return NOTE + (LEGACY_NOTE if any(e.protocol < CURRENT for e in filled) else "")
+
+
+def table_one(runs: list[Run], root: Path) -> PaperTable:
+    header = ["method", *(title for title, *_ in TABLE_I_COLUMNS), "hard subset success [%]", "run"]
+    rows, filled = [], []
     for row in TABLE_I:
-        run = _newest_evaluated(runs, row.experiments)
-        block = (run.evaluation or {}).get(row.planner) if run else None
-        source = _source(run)
-        if block is None and row.planner == "expert":
-            block, source = _expert_alone(root)
-        cells = [_pair(block, key, scale, digits) for _, key, scale, digits in TABLE_I_COLUMNS]
-        rows.append([row.label, *cells, source])
-    return header, rows
+        found = _filling(row, runs, root)
+        block = {} if found is None else found.block(row.planner)
+        if found is None or found.protocol >= CURRENT:
+            bench = block.get(BENCHMARK) or {}
+            cells = [_rate(bench, key) if digits is None else _value(bench, key, digits)
+                     for _, key, digits, _ in TABLE_I_COLUMNS]
+            cells.append(_rate(block.get(hard(BENCHMARK)) or {}, SUCCESS))
+            label = row.label
+        else:
+            cells = [_pair(block, legacy, 100.0 if digits is None else 1.0, digits or 3)
+                     for _, _, digits, legacy in TABLE_I_COLUMNS] + [DASH]
+            label = row.label + LEGACY_MARK
+        filled += [found] if found is not None else []
+        rows.append([label, *cells, DASH if found is None else found.source])
+    return PaperTable(_title("Table I: motion planning", filled), header, rows, _note(filled))
 
 
-def table_two(runs: list[Run]) -> tuple[list[str], list[list[str]]]:
-    header = ["anchors n_e", "train time / epoch [s]", "inference / step [s]", "success / reach / collision, train [%]",
-              "success / reach / collision, held-out [%]", "run"]
-    rows = []
+def table_two(runs: list[Run]) -> PaperTable:
+    header = ["anchors n_e", "train time / epoch [s]", "step time, B = 1 [s]", *(t for t, _ in TABLE_II_RATES), "run"]
+    rows, filled = [], []
     for row in TABLE_II:
         run = _newest_evaluated(runs, row.experiments)
-        block = (run.evaluation or {}).get(row.planner) if run else None
+        found = _of_run(run)
+        block = {} if found is None else found.block(row.planner)
         epochs, fit_s = (run.record.get("epochs"), run.record.get("fit_time_s")) if run else (None, None)
         per_epoch = fmt(fit_s / epochs, 3) if epochs and fit_s else DASH
-        infer = ((block or {}).get("all") or (block or {}).get("heldout") or {}).get(INFERENCE_TIME)
-        rates = []
-        for split in SPLITS:
-            m = (block or {}).get(split) or {}
-            rates.append(" / ".join(DASH if m.get(k) is None else fmt(100 * float(m[k]), 3)
-                                    for k in TABLE_II_RATES))
-        rows.append([row.label, per_epoch, DASH if infer is None else fmt(float(infer), 2), *rates, _source(run)])
-    return header, rows
+        if found is None or found.protocol >= CURRENT:
+            bench = block.get(BENCHMARK) or {}
+            cells = [_value(bench, STEP_TIME_B1, 2), *(_rate(bench, key) for _, key in TABLE_II_RATES)]
+            label = row.label
+        else:
+            step = (block.get("all") or block.get("heldout") or {}).get(LEGACY_STEP_TIME)
+            cells = [DASH if step is None else fmt(float(step), 2),
+                     *(_pair(block, key, 100.0) for _, key in TABLE_II_RATES)]
+            label = row.label + LEGACY_MARK
+        filled += [found] if found is not None else []
+        rows.append([label, per_epoch, *cells, DASH if found is None else found.source])
+    return PaperTable(_title("Table II: anchor size (n_e per axis)", filled), header, rows, _note(filled))
 
 
-def paper_tables(runs: list[Run], root: Path) -> dict[str, tuple[list[str], list[list[str]]]]:
-    """{"table_1": (header, rows), "table_2": ...}; "train time / epoch" is the fit wall time over the
-    epochs run (validation and in-training evaluation included)."""
+def paper_tables(runs: list[Run], root: Path) -> dict[str, PaperTable]:
+    """{"table_1": PaperTable, "table_2": ...}; "train time / epoch" is the fit wall time over the epochs run
+    (validation and in-training evaluation included)."""
     return {"table_1": table_one(runs, root), "table_2": table_two(runs)}

@@ -2,16 +2,22 @@
 
 - learning curves: a metric from each run's metrics.csv against the epoch, one line per value of a key
   (the mean over the runs sharing it), as the paper's figure of success and reach rate per anchor size;
-- bars: final metrics (run.json) per value of a key, across a sweep (mean, with the std as error bar).
+- bars: final metrics (run.json) per value of a key, across a sweep: the mean over the runs, its error bar
+  the Wilson 95 % interval of their problems pooled where the runs say how many (rates of an evaluation),
+  else the min and max over the runs;
+- a run's summary page: its losses, and its rates per planner and group of problems with their Wilson
+  95 % intervals.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
-from samp.eval.metrics import metric_keys
+from samp.eval.metrics import metric_keys, wilson_interval
 from samp.names import EVAL_PREFIX
-from samp.runs.registry import Run, check_key
+from samp.runs.protocol import BENCHMARK, GROUPS, hard, interval_keys, label
+from samp.runs.registry import Run, check_key, pooled
 from samp.runs.tables import fmt
 
 __all__ = ["CURVE_METRICS", "RATES", "plot_bars", "plot_curves", "plot_run_summary"]
@@ -74,24 +80,36 @@ def plot_curves(runs: list[Run], by: str, metrics: list[str], out: Path, x: str 
     return _save(plt, fig, out)
 
 
-def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
-    """One panel per metric: a bar per value of `by` (mean over its runs, std as error bar)."""
-    import math
+def _errors(value: float, low: float, high: float) -> tuple[float, float]:
+    """Error bar lengths below and above `value` for the range [low, high] (never negative: a pooled
+    interval is about the pooled rate, which may sit a little off the mean of the runs' rates)."""
+    return max(0.0, value - low), max(0.0, high - value)
 
+
+def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
+    """One panel per metric: a bar per value of `by`, the mean over its runs. Error bars: the Wilson 95 %
+    interval of all its runs' problems pooled when every bar has one (a rate, in percent), else the min
+    and max over its runs; the y label says which."""
     groups = _groups(runs, by)
     for m in metrics:
         check_key(runs, m, "metric")
     plt, fig, axes = _figure(len(metrics))
     labels = [fmt(v) for v in groups]
     for ax, metric in zip(axes, metrics):
-        means, stds = [], []
-        for members in groups.values():
+        intervals = [pooled(members, metric) for members in groups.values()]
+        wilson = any(intervals) and all(i is not None for i, members in zip(intervals, groups.values())
+                                        if any(r.has(metric) for r in members))
+        scale = 100.0 if wilson else 1.0
+        means, errors = [], []
+        for members, interval in zip(groups.values(), intervals):
             vals = [float(r.get(metric)) for r in members if isinstance(r.get(metric), (int, float))]
             mean = sum(vals) / len(vals) if vals else math.nan
-            means.append(mean)
-            stds.append(math.sqrt(sum((v - mean) ** 2 for v in vals) / len(vals)) if vals else 0.0)
-        ax.bar(labels, means, yerr=stds, capsize=3, color="tab:blue", alpha=0.8)
+            means.append(scale * mean)
+            span = interval if wilson else (min(vals), max(vals)) if vals else (mean, mean)
+            errors.append(_errors(scale * mean, scale * span[0], scale * span[1]) if vals else (math.nan, math.nan))
+        ax.bar(labels, means, yerr=list(zip(*errors)), capsize=3, color="tab:blue", alpha=0.8)
         ax.set_xlabel(by)
+        ax.set_ylabel("mean of runs [%]; bars: pooled Wilson 95 %" if wilson else "mean of runs; bars: min to max")
         ax.set_title(metric)
         ax.grid(axis="y", alpha=0.3)
     return _save(plt, fig, out)
@@ -101,9 +119,32 @@ def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
 RATES = metric_keys(flat=True, rate=True)
 
 
+def _summary_groups(protocol: int | None, planners: list[tuple[str, dict]]) -> list[str]:
+    """The groups of problems a summary shows, those the evaluation has: protocol 2's val, train and
+    benchmark scenes and the benchmark's hard subset; protocol 1's train and held-out scenes."""
+    wanted = (*GROUPS[2], hard(BENCHMARK)) if protocol == 2 else GROUPS[1]
+    return [g for g in wanted if any(g in m for _, m in planners)]
+
+
+def _rate_bar(summary: dict, rate: str) -> tuple[float, tuple[float, float]]:
+    """A rate in percent and its error bar lengths: its Wilson 95 % interval as recorded (`<rate>_ci_low`,
+    `_ci_high`), or from the group's problem count (an evaluation that recorded none); NaN (nothing drawn)
+    where there is no rate or no interval."""
+    value = summary.get(rate)
+    if value is None:
+        return math.nan, (math.nan, math.nan)
+    low, high = (summary.get(k) for k in interval_keys(rate))
+    if (low is None or high is None) and summary.get("problems"):
+        low, high = wilson_interval(round(value * summary["problems"]), summary["problems"])
+    if low is None or high is None:
+        return 100 * value, (math.nan, math.nan)
+    return 100 * value, _errors(100 * value, 100 * low, 100 * high)
+
+
 def plot_run_summary(run: Run, out: Path) -> Path:
     """One policy run on one page: its train and val losses per step (metrics.csv) and, when it was
-    evaluated, success, reach and collision rate per planner and split (eval/metrics.json)."""
+    evaluated, success, reach and collision rate per planner and group of problems (eval/metrics.json),
+    with their Wilson 95 % intervals as error bars."""
     evaluated = run.evaluation or {}
     planners = [(name, evaluated[key]) for name, key in (("policy", "metrics"), ("expert", "expert"),
                                                           ("straight", "straight")) if evaluated.get(key)]
@@ -116,17 +157,21 @@ def plot_run_summary(run: Run, out: Path) -> Path:
     axes[0].set_yscale("log")
     axes[0].set(xlabel="step", title="losses")
     axes[0].grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    splits = [s for s in ("train", "heldout") if any(s in m for _, m in planners)]
+    if axes[0].get_legend_handles_labels()[0]:  # a run without metrics.csv has no losses to name
+        axes[0].legend(fontsize=8)
+    groups = _summary_groups(run.protocol, planners)
     for ax, rate in zip(axes[1:], RATES):
         for i, (name, metrics) in enumerate(planners):
-            xs = [j + (i - (len(planners) - 1) / 2) * 0.25 for j in range(len(splits))]
-            ax.bar(xs, [100 * (metrics.get(s, {}).get(rate) or 0.0) for s in splits], width=0.25, label=name)
-        ax.set_xticks(range(len(splits)), [f"{s} scenes" for s in splits])
-        ax.set(title=rate.replace("_", " ") + " [%]", ylim=(0, 119))
+            xs = [j + (i - (len(planners) - 1) / 2) * 0.25 for j in range(len(groups))]
+            values, errors = zip(*(_rate_bar(metrics.get(g) or {}, rate) for g in groups)) if groups else ((), ())
+            ax.bar(xs, values, width=0.25, yerr=list(zip(*errors)) or None, capsize=2, label=name)
+        ax.set_xticks(range(len(groups)), [g.replace("_", " ") if g.startswith(BENCHMARK) else f"{g} scenes"
+                                           for g in groups])
+        ax.set(title=rate.replace("_", " ") + " [%]", ylabel="error bars: Wilson 95 %", ylim=(0, 119))
         ax.grid(axis="y", alpha=0.3)
         ax.legend(fontsize=7, ncol=len(planners), loc="upper center")
-    fig.suptitle(f"{run.get('experiment')}  {run.path.name}", fontsize=9)
+    protocol = "" if run.protocol is None else f"  (protocol {label(run.protocol, short=True)})"
+    fig.suptitle(f"{run.get('experiment')}  {run.path.name}{protocol}", fontsize=9)
     return _save(plt, fig, out)
 
 

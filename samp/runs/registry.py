@@ -2,8 +2,9 @@
 
 A run's keys are one flat namespace: its resolved config as dotted keys (`datamodule.n_e`, `name`,
 `system.collision_loss`), its record (`status`, `experiment`, `seed`, `dataset_id`, `fit_time_s`,
-`code_version.git_commit`, `sweep.member`, ...) and its final metrics (`val/loss`,
-`eval/samp/heldout/success_rate`, ...). `--by`, filters and table columns all use these keys.
+`code_version.git_commit`, `sweep.member`, ...), the protocol of its evaluation (`protocol`: 2, 1 or
+null; `samp.runs.protocol`) and its final metrics (`val/loss`, `eval/samp/benchmark/success_rate`, ...).
+`--by`, filters and table columns all use these keys.
 """
 
 from __future__ import annotations
@@ -15,8 +16,9 @@ from pathlib import Path
 
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import flatten
+from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rate, pooled_interval, protocol_of
 
-__all__ = ["EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "varying_keys"]
+__all__ = ["EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "pooled", "varying_keys"]
 
 EVAL_METRICS = Path("eval") / "metrics.json"  # written by `python -m samp.eval` (samp.eval.names)
 HIDDEN = ("config", "metrics", "packages", "traceback", "command", "starts", "loggers")  # not keys of their own
@@ -31,9 +33,10 @@ class Run:
 
     @cached_property
     def values(self) -> dict:
-        """Config and record as dotted keys (the record wins where both have a key, e.g. `seed`)."""
+        """Config and record as dotted keys (the record wins where both have a key, e.g. `seed`), and the
+        evaluation's `protocol`."""
         record = {k: v for k, v in self.record.items() if k not in HIDDEN}
-        return {**flatten(self.record.get("config") or {}), **flatten(record)}
+        return {**flatten(self.record.get("config") or {}), **flatten(record), PROTOCOL: self.protocol}
 
     @property
     def metrics(self) -> dict:
@@ -64,6 +67,29 @@ class Run:
         """The run's eval/metrics.json (per split, the planner's and the expert's metrics), if any."""
         path = self.path / EVAL_METRICS
         return json.loads(path.read_text()) if path.is_file() else None
+
+    @cached_property
+    def protocol(self) -> int | None:
+        """The protocol its evaluation followed (`samp.runs.protocol`): 2, 1 (an older evaluation) or None."""
+        return protocol_of(self.evaluation, self.metrics)
+
+    def interval(self, key: str) -> tuple[float, float] | None:
+        """The Wilson 95 % interval the run recorded beside the rate `key` (`<key>_ci_low`, `<key>_ci_high`)."""
+        low, high = (self.metrics.get(k) for k in interval_keys(key))
+        return None if low is None or high is None else (float(low), float(high))
+
+    def problems(self, key: str) -> int | None:
+        """How many problems the metric `key` (`eval/<planner>/<group>/<metric>`) is over, as eval/metrics.json
+        says (the group's summary, else its "groups" or protocol 1's "problems" entry); None when unknown."""
+        parts, report = eval_key(key), self.evaluation or {}
+        if parts is None:
+            return None
+        planner, group, _ = parts
+        block = "metrics" if planner == report.get("planner") else BLOCKS.get(planner)
+        listed = report.get("problems") if isinstance(report.get("problems"), dict) else {}
+        counts = (((report.get(block) or {}).get(group) or {}).get("problems") if block else None,
+                  ((report.get("groups") or {}).get(group) or {}).get("problems"), listed.get(group))
+        return next((int(n) for n in counts if isinstance(n, int) and not isinstance(n, bool)), None)
 
     def curves(self) -> list[dict]:
         """metrics.csv as rows of {column: float} (empty cells left out)."""
@@ -105,6 +131,15 @@ def matches(run: Run, filters: list[str]) -> bool:
         if text != want:
             return False
     return True
+
+
+def pooled(runs: list[Run], key: str) -> tuple[float, float] | None:
+    """The Wilson 95 % interval of the rate `key` over the problems of all `runs` together; None unless `key`
+    is a rate and every run has it and its problem count."""
+    counts = [(r.metrics.get(key), r.problems(key)) for r in runs]
+    if not runs or not is_rate(key) or any(not isinstance(rate, (int, float)) or n is None for rate, n in counts):
+        return None
+    return pooled_interval([(float(rate), n) for rate, n in counts])
 
 
 def varying_keys(runs: list[Run], keys: list[str]) -> list[str]:

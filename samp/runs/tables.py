@@ -1,5 +1,11 @@
 """Tables over runs, as markdown (to read) and CSV (to process): listings, sweeps grouped by a key, and
-side-by-side comparisons. A table is (header, rows) of strings; `write_table` puts both files side by side."""
+side-by-side comparisons. A table is (header, rows) of strings; `write_table` puts both files side by side.
+
+A rate whose Wilson 95 % interval the runs recorded beside it (protocol 2, `samp.runs.protocol`) shows in
+percent with the interval, "93.3 [84.1, 97.4]", its row or column marked "[%]"; over several runs,
+"mean ± std [interval]", the interval that of all their problems pooled. Its `_ci_low` and `_ci_high` keys
+do not get rows of their own.
+"""
 
 from __future__ import annotations
 
@@ -9,13 +15,15 @@ import math
 import sys
 from pathlib import Path
 
-from samp.runs.registry import Run, check_key, varying_keys
+from samp.runs.protocol import BENCHMARK, BENCHMARK_REF, BLOCKS, PROTOCOL, eval_key, interval_keys, label
+from samp.runs.registry import Run, check_key, pooled, varying_keys
 
-__all__ = ["DASH", "compare_table", "default_metrics", "fmt", "group_table", "list_table", "markdown", "show_text", "to_csv",
-           "write_table"]
+__all__ = ["DASH", "compare_table", "default_metrics", "fmt", "group_table", "list_table", "markdown", "percent",
+           "show_text", "to_csv", "write_table"]
 
 DASH = "-"  # a value that is missing (no such run, or the run has no such metric)
-LIST_COLUMNS = ("run", "status", "experiment", "dataset_id", "seed", "steps", "start")
+LIST_COLUMNS = ("run", "status", "experiment", "dataset_id", PROTOCOL, "seed", "steps", "start")
+PERCENT = " [%]"  # marks a row or column of rates shown in percent with their intervals
 
 
 def fmt(value, digits: int = 4) -> str:
@@ -25,6 +33,15 @@ def fmt(value, digits: int = 4) -> str:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return str(value)
     return f"{value:.{digits}g}" if isinstance(value, float) else str(value)
+
+
+def percent(rate, interval: tuple[float, float] | None = None, std: float | None = None, digits: int = 1) -> str:
+    """A rate (a fraction) in percent, "93.3", with its std over runs, "93.3 ± 2.1", and its interval,
+    "93.3 [84.1, 97.4]" (as samp.eval.metrics' tables write it); None as a dash."""
+    if rate is None:
+        return DASH
+    text = f"{100 * rate:.{digits}f}" + ("" if std is None else f" ± {100 * std:.{digits}f}")
+    return text if interval is None else text + f" [{100 * interval[0]:.{digits}f}, {100 * interval[1]:.{digits}f}]"
 
 
 def markdown(header: list[str], rows: list[list[str]]) -> str:
@@ -41,20 +58,48 @@ def to_csv(header: list[str], rows: list[list[str]]) -> str:
     return out.getvalue()
 
 
-def write_table(prefix: Path, header: list[str], rows: list[list[str]], title: str = "") -> list[Path]:
-    """`<prefix>.md` and `<prefix>.csv` (replacing earlier ones: tables are derived from the runs)."""
+def write_table(prefix: Path, header: list[str], rows: list[list[str]], title: str = "", note: str = "") -> list[Path]:
+    """`<prefix>.md` (the title above the table, the note below it) and `<prefix>.csv` (replacing earlier
+    ones: tables are derived from the runs)."""
     prefix.parent.mkdir(parents=True, exist_ok=True)
     md, cs = prefix.with_suffix(".md"), prefix.with_suffix(".csv")
-    md.write_text((f"# {title}\n\n" if title else "") + markdown(header, rows))
+    md.write_text((f"# {title}\n\n" if title else "") + markdown(header, rows) + (f"\n{note}\n" if note else ""))
     cs.write_text(to_csv(header, rows))
     return [md, cs]
 
 
+def _cell(run: Run, key: str) -> str:
+    """`run`'s value of `key`; the protocol as `ls` abbreviates it ("2", "1 (legacy)")."""
+    if key == PROTOCOL:
+        return DASH if run.protocol is None else label(run.protocol, short=True)
+    return fmt(run.get(key))
+
+
 def list_table(runs: list[Run], extra: list[str] = ()) -> tuple[list[str], list[list[str]]]:
-    """One row per run: name, status, experiment, dataset, seed, steps, start, then the `extra` keys."""
-    rows = [[r.name, r.status, *(fmt(r.get(k)) for k in LIST_COLUMNS[2:]), *(fmt(r.get(k)) for k in extra)]
-            for r in runs]
+    """One row per run: name, status, experiment, dataset, evaluation protocol, seed, steps, start, then the
+    `extra` keys."""
+    rows = [[r.name, r.status, *(_cell(r, k) for k in LIST_COLUMNS[2:]), *(fmt(r.get(k)) for k in extra)] for r in runs]
     return list(LIST_COLUMNS) + list(extra), rows
+
+
+def with_intervals(runs: list[Run], metrics: list[str]) -> set[str]:
+    """The `metrics` that are rates with an interval recorded beside them in any of `runs`."""
+    return {m for m in metrics if any(r.interval(m) is not None for r in runs)}
+
+
+def _folded(metrics: list[str], runs: list[Run]) -> list[str]:
+    """`metrics` less the interval keys of the rates among them shown with their intervals."""
+    shown = {k for m in with_intervals(runs, metrics) for k in interval_keys(m)}
+    return [m for m in metrics if m not in shown]
+
+
+def _warn_protocols(runs: list[Run]) -> None:
+    """A warning on stderr when `runs` were evaluated under different protocols (their numbers differ in kind)."""
+    protocols = sorted({r.protocol for r in runs if r.protocol is not None})
+    if len(protocols) > 1:
+        print(f"warning: these runs were evaluated under different protocols ({', '.join(map(str, protocols))}); "
+              "their evaluation metrics are not comparable (`python -m samp.runs show RUN` says what each means)",
+              file=sys.stderr)
 
 
 def _mean_std(values: list[float]) -> str:
@@ -72,17 +117,40 @@ def _sort_key(value):
 
 
 def default_metrics(runs: list[Run], limit: int = 8) -> list[str]:
-    """The numeric metrics every run has (rollout rates first), at most `limit`."""
+    """The numeric metrics every run has, at most `limit`: the evaluation's first, the benchmark's before
+    other groups', the run's own planner before the expert and the straight line, rates first (their
+    intervals go with them)."""
     common = set.intersection(*(set(r.metrics) for r in runs)) if runs else set()
-    numeric = [m for m in common if all(isinstance(r.metrics[m], (int, float)) for r in runs)]
-    return sorted(numeric, key=lambda m: (not m.startswith("eval/"), "rate" not in m, m))[:limit]
+    numeric = _folded([m for m in common if all(isinstance(r.metrics[m], (int, float)) for r in runs)], runs)
+
+    def order(m: str):
+        planner, group, _ = eval_key(m) or ("", "", "")
+        return not m.startswith("eval/"), group != BENCHMARK, planner in BLOCKS, "rate" not in m, m
+
+    return sorted(numeric, key=order)[:limit]
+
+
+def _rate_over(runs: list[Run], key: str) -> str:
+    """A rate over `runs` in percent: the mean ± std of their rates, and the Wilson interval of all their
+    problems pooled (one run: its own interval) when every run says how many problems it had."""
+    values = [float(v) for v in (r.get(key) for r in runs) if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    if not values:
+        return DASH
+    mean = sum(values) / len(values)
+    std = math.sqrt(sum((v - mean) ** 2 for v in values) / len(values)) if len(values) > 1 else None
+    interval = pooled(runs, key) or (runs[0].interval(key) if len(runs) == 1 else None)
+    return percent(mean, interval, std)
 
 
 def group_table(runs: list[Run], by: str, metrics: list[str]) -> tuple[list[str], list[list[str]]]:
-    """One row per value of `by`: how many runs, their statuses, and each metric's mean ± std over them."""
+    """One row per value of `by`: how many runs, their statuses, and each metric's mean ± std over them
+    (rates with recorded intervals in percent, with the pooled interval). Warns on stderr when the runs
+    were evaluated under different protocols."""
     check_key(runs, by, "--by key")
     for m in metrics:
         check_key(runs, m, "metric")
+    _warn_protocols(runs)
+    rates = with_intervals(runs, metrics)
     groups: dict = {}
     for r in runs:
         groups.setdefault(r.get(by), []).append(r)
@@ -92,42 +160,54 @@ def group_table(runs: list[Run], by: str, metrics: list[str]) -> tuple[list[str]
         statuses = sorted({r.status for r in members})
         cells = []
         for m in metrics:
+            if m in rates:
+                cells.append(_rate_over(members, m))
+                continue
             got = [r.get(m) for r in members]
             cells.append(_mean_std([float(v) for v in got if isinstance(v, (int, float)) and not isinstance(v, bool)]))
         rows.append([fmt(value), str(len(members)), ",".join(statuses), *cells])
-    return [by, "runs", "status", *metrics], rows
+    return [by, "runs", "status", *(m + PERCENT if m in rates else m for m in metrics)], rows
 
 
 def compare_table(runs: list[Run], metrics: list[str] | None = None) -> tuple[list[str], list[list[str]]]:
-    """Keys as rows, runs as columns: the lineage, every config key that differs, then the metrics.
-    Warns on stderr when the runs are for different robots."""
+    """Keys as rows, runs as columns: the lineage, every config key that differs, then the metrics (rates
+    with recorded intervals in percent, "93.3 [84.1, 97.4]"). Warns on stderr when the runs are for
+    different robots or were evaluated under different protocols."""
     robots = sorted({str(r.robot) for r in runs})
     if len(robots) > 1:
         print(f"warning: these runs are for different robots ({', '.join(robots)}); their metrics are not "
               "comparable", file=sys.stderr)
-    lineage = ["status", "experiment", "dataset_id", "robot_sdf_artifact_id", "code_version.git_commit",
+    _warn_protocols(runs)
+    lineage = ["status", "experiment", "dataset_id", PROTOCOL, "robot_sdf_artifact_id", "code_version.git_commit",
                "code_version.git_dirty", "seed", "steps"]
     differing = varying_keys(runs, sorted(set().union(*(r.values for r in runs)) - set(lineage)))
-    metrics = metrics or sorted(set().union(*(r.metrics for r in runs)))
-    rows = [[k, *(fmt(r.get(k)) for r in runs)] for k in [*lineage, *differing, *metrics]]
+    metrics = metrics or _folded(sorted(set().union(*(r.metrics for r in runs))), runs)
+    rates = with_intervals(runs, metrics)
+    rows = [[k, *(_cell(r, k) for r in runs)] for k in [*lineage, *differing]]
+    rows += [[m + PERCENT, *(percent(r.get(m), r.interval(m)) for r in runs)] if m in rates
+             else [m, *(fmt(r.get(m)) for r in runs)] for m in metrics]
     return ["key", *(r.name for r in runs)], rows
 
 
 def show_text(run: Run) -> str:
     """A run's record as text: status and times, lineage, overrides, metrics and files."""
     rec, code = run.record, run.record.get("code_version") or {}
+    bench = (run.evaluation or {}).get(BENCHMARK_REF)
     lines = [f"run        {run.path}", f"status     {run.status}" + (f"  ({rec['error']})" if rec.get("error") else ""),
              f"experiment {rec.get('experiment')}   seed {rec.get('seed')}   robot {run.robot}",
              f"started    {rec.get('start')}   ended {rec.get('end')}   starts {len(rec.get('starts') or [])}",
              f"steps      {rec.get('steps')}   epochs {rec.get('epochs')}   fit time {fmt(rec.get('fit_time_s'))} s",
              f"dataset    {rec.get('dataset_id')}   robot SDF {rec.get('robot_sdf_artifact_id')}",
+             f"protocol   {label(run.protocol)}" + (f"   benchmark {bench}" if bench else ""),
              f"code       {code.get('package')} at {code.get('git_commit')}" + (" (dirty)" if code.get("git_dirty") else ""),
              f"host       {rec.get('host')}",
              "overrides  " + " ".join(rec.get("overrides") or [])]
     if rec.get("sweep"):
         lines.append(f"sweep      {rec['sweep'].get('dir')} member {rec['sweep'].get('member')}")
     if run.metrics:
-        lines += ["", markdown(["metric", "value"], [[k, fmt(v)] for k, v in sorted(run.metrics.items())])]
+        keys = _folded(sorted(run.metrics), [run])
+        lines += ["", markdown(["metric", "value"], [[k + PERCENT, percent(run.get(k), run.interval(k))]
+                                                     if run.interval(k) else [k, fmt(run.get(k))] for k in keys])]
     files = sorted(p.relative_to(run.path).as_posix() + ("/" if p.is_dir() else "") for p in run.path.iterdir())
     lines += ["files      " + "  ".join(files)]
     return "\n".join(lines) + "\n"

@@ -19,13 +19,14 @@ run.json holds the same numbers flat, `eval/<planner>/<group>/<metric>` (`eval_k
 
 from __future__ import annotations
 
-from samp.eval.metrics import metric_keys, wilson_interval
+from samp.eval.metrics import metric, metric_keys, wilson_interval
+from samp.eval.report import PROTOCOL as EVALUATION_PROTOCOL
 from samp.names import EVAL_PREFIX
 
 __all__ = ["BENCHMARK", "BENCHMARK_REF", "BLOCKS", "CURRENT", "GROUPS", "PROTOCOL", "SOLUTION_TIME_B1", "STEP_TIME_B1",
            "THROUGHPUT", "eval_key", "hard", "interval_keys", "is_rate", "label", "pooled_interval", "protocol_of"]
 
-CURRENT = 2
+CURRENT = EVALUATION_PROTOCOL  # what `samp.eval.report` writes now
 PROTOCOL = "protocol"  # eval/metrics.json's field, and the run key it becomes (`ls protocol=2`)
 # What each protocol's numbers mean: (its cell in `ls`; the line `show` adds).
 LABELS = {
@@ -41,9 +42,10 @@ BENCHMARK_REF = "benchmark"  # eval/metrics.json: the benchmark's `name@id` (nul
 _LEGACY_ONLY = ("heldout", "all")  # groups only protocol 1 has
 # The blocks of eval/metrics.json besides the planner's own ("metrics"), by the planner name run.json uses.
 BLOCKS = {"expert": "expert", "straight": "straight"}
-# Protocol 2's timings (summary keys beside those of `samp.eval.metrics.METRICS`): seconds per problem and per
-# policy step one problem at a time (B = 1), and problems per second in batched rollouts.
-SOLUTION_TIME_B1, STEP_TIME_B1, THROUGHPUT = "solution_time_b1_mean", "step_time_b1_mean", "throughput"
+# Protocol 2's timings (`samp.eval.metrics.METRICS`): seconds per problem and per policy step one problem at a
+# time (B = 1), and problems per second in batched rollouts.
+SOLUTION_TIME_B1, STEP_TIME_B1, THROUGHPUT = (metric(name).key for name in ("solution_time_b1", "step_time_b1",
+                                                                              "throughput"))
 
 
 def hard(group: str) -> str:

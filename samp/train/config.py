@@ -10,7 +10,7 @@ from typing import Any
 
 __all__ = ["TrainSchema", "compose_train_config"]
 
-PICK_EXPERIMENT = "pick one with experiment=NAME (`python -m samp.train --help` lists them)"
+PICK_EXPERIMENT = "pick an experiment with experiment=NAME (`python -m samp.train --help` lists them)"
 HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
 
 

@@ -7,7 +7,8 @@ from __future__ import annotations
 __all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "BATCH_START", "BATCH_STEP", "BATCH_STEP_CLEAN", "BATCH_TRAJ", "BEST_CKPT",
            "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE", "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX",
            "LAST_CHECKPOINT", "METRICS_CSV", "METRICS_JSON", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL",
-           "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SUMMARY_PNG", "TRAIN_PREFIX", "VAL_PREFIX"]
+           "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRAIN_PREFIX",
+           "VAL_PREFIX"]
 
 # ---------------------------------------------------------------- a run folder (DESIGN section 6)
 RUN_JSON = "run.json"
@@ -41,5 +42,10 @@ BATCH_STEP = "step"  # (B,) long, t
 
 # ---------------------------------------------------------------- logged metrics and splits
 TRAIN_PREFIX, VAL_PREFIX, EVAL_PREFIX = "train/", "val/", "eval/"
-SPLITS = ("train", "heldout")  # scene splits of a dataset
+# Scene splits of a dataset (DESIGN section 4): training scenes hold demonstrations, validation scenes drive
+# the validation loss, the evaluation during training and the choice of checkpoint, test scenes are seen
+# only by the final evaluation.
+SPLITS = ("train", "val", "test")
+# Datasets written before issue 17 had one "heldout" split that both validated and tested: it reads as "val".
+SPLIT_ALIASES = {"heldout": "val"}
 ALL_SPLITS = "all"  # the pooled metrics over every problem evaluated

@@ -151,8 +151,8 @@ def test_data_takes_dataset_key_value(tmp_path, capsys):
 
     assert OmegaConf.to_yaml(_config(["dataset=smoke", "workers=2"])) == OmegaConf.to_yaml(
         _config(["+dataset=smoke", "workers=2"]))
-    spec = {"name": "cli_tiny", "robot": "panda", "seed": 3, "train_scenes": 1, "heldout_scenes": 0,
-            "trajectories_per_scene": 1, "generators": ["tabletop"], "resolutions": [8]}
+    spec = {"name": "cli_tiny", "robot": "panda", "seed": 3, "train_scenes": 1, "val_scenes": 0,
+            "trajectories_per_scene": 1, "eval_problems_per_scene": 1, "generators": ["tabletop"], "resolutions": [8]}
     folder = generate(spec, root=tmp_path, progress=False)
     main = _main("samp.data")
     assert main(["verify", "dataset=cli_tiny", f"root={tmp_path}"]) == 0

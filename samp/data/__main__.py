@@ -28,6 +28,9 @@ def _help() -> str:
 
 
 def _config(overrides: list[str]):
+    from samp.data.spec import check_overrides
+
+    check_overrides(overrides)  # `dataset.heldout_scenes=1` names the keys that replaced it
     # conf/data.yaml's defaults list names no dataset: `dataset=NAME` adds the spec, as `+dataset=NAME` does
     cfg = compose("data", [f"+{o}" if o.startswith("dataset=") else o for o in overrides])
     if "dataset" not in cfg:
@@ -70,8 +73,10 @@ def _print_summary(folder: Path) -> None:
     m = read_manifest(folder)
     c = m["counts"]
     print(f"dataset {m['name']}@{m['id']} in {folder}")
-    print(f"  {c['scenes']} scenes ({c['train_scenes']} train, {c['heldout_scenes']} held out), {c['trajectories']} "
-          f"trajectories, {c['failures']} failed problems, planner time {m['planning_time']['total_s']:.1f} s")
+    print(f"  {c['scenes']} scenes ({c['train_scenes']} train, {c['val_scenes']} val, {c['test_scenes']} test), "
+          f"{c['trajectories']} demonstrations ({c['failures']} problems failed), {c['eval_problems']} evaluation "
+          f"problems ({c['eval_failures']} unsolved by the expert), planner time "
+          f"{m['planning_time']['total_s'] + m['eval_planning_time']['total_s']:.1f} s")
 
 
 def _parse(args: list[str], needs_ref: bool) -> tuple[str | None, dict]:
@@ -99,12 +104,12 @@ def _ls(args: list[str]) -> None:
     if not rows:
         print(f"no datasets under {root}; generate one with `python -m samp.data generate +dataset=quickstart`")
         return
-    print(f"{'name@id':<32} {'created':<26} {'scenes':>6} {'trajs':>7} {'MB':>8}")
+    print(f"{'name@id':<32} {'created':<26} {'scenes':>6} {'trajs':>7} {'eval':>6} {'MB':>8}")
     for d in rows:
         mb = sum(f.stat().st_size for f in Path(d["path"]).iterdir()) / 1e6
         counts = d.get("counts", {})
         print(f"{d['name'] + '@' + d['id']:<32} {d['created']:<26} {counts.get('scenes', '-'):>6} "
-              f"{counts.get('trajectories', '-'):>7} {mb:8.1f}")
+              f"{counts.get('trajectories', '-'):>7} {counts.get('eval_problems', '-'):>6} {mb:8.1f}")
 
 
 def _show(args: list[str]) -> None:
@@ -147,32 +152,38 @@ def _inspect(args: list[str]) -> None:
     ref, opts = _parse(args, needs_ref=True)
     ds = open_dataset(ref, _root(opts))
     print(repr(ds))
-    print(f"{'scene':<28} {'generator':<10} {'split':<8} {'solved':>9} {'ee path m':>10} {'plan s':>8}")
+    print(f"{'scene':<28} {'generator':<10} {'split':<6} {'demos':>9} {'eval':>9} {'ee path m':>10} {'plan s':>8}")
     by_gen: dict[str, list[int]] = {}
     for i, s in enumerate(ds.manifest["scenes"]):
-        eps = [e for e in ds.episodes if e["scene"] == i]
-        ok = [e for e in eps if e["success"]]
+        demos = [e for e in ds.episodes if e["scene"] == i]
+        evals = [p for p in ds.eval_problems if p["scene"] == i]
+        ok = [e for e in demos + evals if e["success"]]
+        solved = sum(p["success"] for p in evals)
         by_gen.setdefault(s["generator"], [0, 0])
         by_gen[s["generator"]][0] += len(ok)
-        by_gen[s["generator"]][1] += len(eps)
+        by_gen[s["generator"]][1] += len(demos) + len(evals)
         ee = np.mean([e["stats"]["ee_path_length"] for e in ok]) if ok else float("nan")
-        print(f"{s['name']:<28} {s['generator']:<10} {s['split']:<8} {len(ok):>4}/{len(eps):<4} {ee:10.3f} "
-              f"{np.mean(s['planning_time']) if s['planning_time'] else 0:8.2f}")
-    print("success rate per generator: " + ", ".join(f"{g} {a / max(b, 1):.0%} ({a}/{b})" for g, (a, b) in by_gen.items()))
-    reasons: dict[str, int] = {}
-    for e in ds.episodes:
-        if not e["success"]:
-            key = e["reason"].split(":")[0]
-            reasons[key] = reasons.get(key, 0) + 1
-    if reasons:
-        print("failures: " + ", ".join(f"{k} x{v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1])))
+        times = s["planning_time"] + s.get("eval_planning_time", [])
+        print(f"{s['name']:<28} {s['generator']:<10} {ds.scene_split[i]:<6} {len(ok) - solved:>4}/{len(demos):<4} "
+              f"{solved:>4}/{len(evals):<4} {ee:10.3f} {np.mean(times) if times else 0:8.2f}")
+    print("expert success rate per generator: " +
+          ", ".join(f"{g} {a / max(b, 1):.0%} ({a}/{b})" for g, (a, b) in by_gen.items()))
+    for what, records in (("demonstration", ds.episodes), ("evaluation problem", ds.eval_problems)):
+        reasons: dict[str, int] = {}
+        for e in records:
+            if not e["success"]:
+                key = e["reason"].split(":")[0]
+                reasons[key] = reasons.get(key, 0) + 1
+        if reasons:
+            ranked = sorted(reasons.items(), key=lambda kv: -kv[1])
+            print(f"{what} failures: " + ", ".join(f"{k} x{v}" for k, v in ranked))
     with open(ds.path / ds.manifest["scenes"][0]["file"], "rb") as f:
         summary = make_reader(f).get_summary()
     stats = summary.statistics
     print(f"MCAP {ds.manifest['scenes'][0]['file']}: {stats.message_count} messages, {stats.chunk_count} chunks")
     for cid, ch in sorted(summary.channels.items()):
         schema = summary.schemas.get(ch.schema_id)
-        print(f"  {ch.topic:<14} {ch.message_encoding:<9} {schema.name if schema else '-':<22} "
+        print(f"  {ch.topic:<17} {ch.message_encoding:<9} {schema.name if schema else '-':<22} "
               f"{stats.channel_message_counts.get(cid, 0):>6} messages")
 
 

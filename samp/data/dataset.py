@@ -2,7 +2,8 @@
 
 Trajectories are small and decoded for the whole dataset when it is opened, into one contiguous
 (N, T, n) tensor; anchor grids are large and decoded per scene and resolution on first use, then kept.
-Nothing is decoded per sample: training code indexes these tensors.
+Nothing is decoded per sample: training code indexes these tensors. Evaluation problems are decoded
+into `Dataset.eval_problems`, apart from the demonstrations: `trajectories` never holds them.
 """
 
 from __future__ import annotations
@@ -17,9 +18,18 @@ import torch
 
 from samp.data.mcap_io import SceneRecord, read_scene_file, write_scene_file
 from samp.data.registry import DatasetError, datasets_root, finalize_dataset, read_manifest, resolve_ref
+from samp.names import SPLIT_ALIASES, SPLITS
 from samp.scene import Scene
 
-__all__ = ["Dataset", "open_dataset", "write_dataset"]
+__all__ = ["Dataset", "canonical_split", "open_dataset", "write_dataset"]
+
+
+def canonical_split(split: str) -> str:
+    """"train" | "val" | "test", with the pre-issue-17 "heldout" read as "val"; ValueError otherwise."""
+    if split not in SPLITS and split not in SPLIT_ALIASES:
+        raise ValueError(f"split must be one of {', '.join(SPLITS)} (or the older 'heldout', read as 'val'), "
+                         f"got {split!r}")
+    return SPLIT_ALIASES.get(split, split)
 
 
 class Dataset:
@@ -27,19 +37,34 @@ class Dataset:
 
     Attributes:
         path: its folder; manifest: its manifest (dict); id, name: from the manifest.
-        scenes: list[Scene] in scene-index order; scene_split: list of "train" | "heldout" per scene.
-        trajectories: (N, T, n) float64 radians, the successful episodes of every scene in order.
-        traj_scene: (N,) long scene index of each trajectory; traj_split: (N,) "train" | "heldout".
-        episodes: every planning problem (failures included) as its JSON record plus "scene".
+        scenes: list[Scene] in scene-index order: train scenes, then val, then test.
+        scene_split: list of "train" | "val" | "test" per scene. scene_hashes: list of `Scene.content_hash()`
+            per scene, the scene's identity (from the manifest; computed for manifests without them).
+        legacy_splits: True for a dataset written before issue 17: its "heldout" scenes (read as "val") both
+            validated and tested, and it stores no evaluation problems. False for newer datasets.
+        trajectories: (N, T, n) float64 radians, the successful demonstrations of every scene in order.
+        traj_scene: (N,) long scene index of each trajectory; traj_split: (N,) "train" | "val" (test scenes
+            have no demonstrations).
+        episodes: every demonstration problem (failures included) as its JSON record plus "scene".
+        eval_problems: every evaluation problem in scene order, stored apart from the demonstrations: dicts
+            {"scene": int, "index": int (within its scene), "split", "start": (n,) list, "goal": (n,) list
+            or None (no valid goal was found), "goal_pose": (4, 4) nested list or None, "kind", "success":
+            bool (the expert solved it), "reason": str (why not), "solution": (W, n) float64 array or None,
+            "planning_time": the expert's seconds or None, "stats": the planner's statistics}.
+        has_eval_problems: whether the dataset stores evaluation problems (False for legacy datasets).
         joint_names: the robot's joint names, in column order.
     """
 
     def __init__(self, path: Path, manifest: dict, records: list[SceneRecord]):
         self.path, self.manifest = path, manifest
         self.name, self.id = manifest["name"], manifest["id"]
-        self._files = [path / s["file"] for s in manifest["scenes"]]
+        infos = manifest["scenes"]
+        self._files = [path / s["file"] for s in infos]
         self.scenes: list[Scene] = [r.scene for r in records]
-        self.scene_split: list[str] = [r.split for r in records]
+        self.scene_split: list[str] = [canonical_split(r.split) for r in records]
+        self.scene_hashes: list[str] = [s.get("content_hash") or r.scene.content_hash() for s, r in zip(infos, records)]
+        self.has_eval_problems = all(r.has_eval_topics and "eval_problems" in s for s, r in zip(infos, records))
+        self.legacy_splits = any(r.split in SPLIT_ALIASES for r in records) or not self.has_eval_problems
         self.joint_names: list[str] = records[0].joint_names if records else []
         self.metadata: list[dict] = [r.metadata for r in records]
         self.resolutions: list[int] = records[0].resolutions if records else []
@@ -48,20 +73,24 @@ class Dataset:
         self.trajectories = torch.from_numpy(np.concatenate(trajs)) if trajs else torch.zeros(0, 0, n, dtype=torch.float64)
         self.traj_scene = torch.cat([torch.full((len(r.trajectories),), i, dtype=torch.long) for i, r in enumerate(records)]) \
             if records else torch.zeros(0, dtype=torch.long)
-        self.traj_split = np.array([self.scene_split[i] for i in self.traj_scene.tolist()], dtype="<U7")
+        self.traj_split = np.array([self.scene_split[i] for i in self.traj_scene.tolist()], dtype="<U5")
         self.episodes: list[dict] = [{**e, "scene": i} for i, r in enumerate(records) for e in r.episodes]
+        self.eval_problems: list[dict] = [p for i, (s, r) in enumerate(zip(infos, records))
+                                          for p in _eval_problems(i, self.scene_split[i], s, r)]
         self._grids: dict[tuple[int, int], torch.Tensor] = {}
 
     def __len__(self) -> int:
         return len(self.trajectories)
 
     def __repr__(self) -> str:
-        return (f"Dataset({self.name}@{self.id}: {len(self.scenes)} scenes ({self.scene_split.count('heldout')} held out), "
-                f"{len(self)} trajectories, grids n_e={self.resolutions})")
+        splits = ", ".join(f"{self.scene_split.count(s)} {s}" for s in SPLITS)
+        return (f"Dataset({self.name}@{self.id}: {len(self.scenes)} scenes ({splits}), {len(self)} trajectories, "
+                f"{len(self.eval_problems)} evaluation problems, grids n_e={self.resolutions}"
+                f"{', legacy splits' if self.legacy_splits else ''})")
 
     def scene_indices(self, split: str) -> list[int]:
-        if split not in ("train", "heldout"):
-            raise ValueError(f"split must be 'train' or 'heldout', got {split!r}")
+        """The indices of the scenes in `split` ("train" | "val" | "test"; "heldout" reads as "val")."""
+        split = canonical_split(split)
         return [i for i, s in enumerate(self.scene_split) if s == split]
 
     def grid(self, scene_index: int, n_e: int) -> torch.Tensor:
@@ -82,6 +111,21 @@ class Dataset:
         return torch.stack([self.grid(i, n_e) for i in range(len(self.scenes))])
 
 
+def _eval_problems(scene: int, split: str, info: dict, record: SceneRecord) -> list[dict]:
+    """A scene file's evaluation records, each with the expert's solution and its planning time (from the
+    manifest: wall-clock times are kept out of the data files)."""
+    times = info.get("eval_planning_time") or [None] * len(record.eval_episodes)
+    solutions = iter(record.eval_trajectories)
+    out = []
+    for e, time_s in zip(record.eval_episodes, times):
+        out.append({"scene": scene, "index": e["episode"], "split": split, "start": e["start"], "goal": e["goal"],
+                    "goal_pose": e.get("goal_pose"), "kind": e.get("kind"), "success": bool(e["success"]),
+                    "reason": e["reason"], "solution": next(solutions) if e["success"] else None,
+                    "planning_time": None if e["goal"] is None or time_s is None else float(time_s),
+                    "stats": e.get("stats", {})})
+    return out
+
+
 def open_dataset(ref: str | Path, root: Path | None = None) -> Dataset:
     """Open `name` (newest), `name@id` (a unique id prefix is enough) or a dataset folder."""
     path = resolve_ref(ref, root)
@@ -90,11 +134,36 @@ def open_dataset(ref: str | Path, root: Path | None = None) -> Dataset:
         raise DatasetError(f"{path} is a {manifest.get('kind', 'different kind of')} dataset, not expert trajectories")
     records = [read_scene_file(path / s["file"], resolutions=[]) for s in manifest["scenes"]]
     for s, r in zip(manifest["scenes"], records):
-        if r.scene_index != s["scene_index"] or len(r.episodes) != s["episodes"] or len(r.trajectories) != s["trajectories"]:
-            raise DatasetError(f"{path / s['file']} does not hold what the manifest says (scene {s['scene_index']}, "
-                               f"{s['episodes']} episodes, {s['trajectories']} trajectories); run "
+        held = (r.scene_index, len(r.episodes), len(r.trajectories), len(r.eval_episodes), len(r.eval_trajectories))
+        said = (s["scene_index"], s["episodes"], s["trajectories"], s.get("eval_problems", 0), s.get("eval_solved", 0))
+        if held != said:
+            raise DatasetError(f"{path / s['file']} does not hold what the manifest says (scene, episodes, "
+                               f"trajectories, evaluation problems, solved ones: expected {said}, found {held}); run "
                                "`python -m samp.data verify` on it")
     return Dataset(path, manifest, records)
+
+
+def _scene_record(ds: Dataset, i: int) -> tuple[SceneRecord, dict]:
+    """Scene i of `ds` as a scene file's content, and its manifest entry with counts and split from `ds`."""
+    info = dict(ds.manifest["scenes"][i])
+    episodes = [{k: v for k, v in e.items() if k != "scene"} for e in ds.episodes if e["scene"] == i]
+    problems = [p for p in ds.eval_problems if p["scene"] == i]
+    records = [{"episode": p["index"], "success": p["success"], "reason": p["reason"], "kind": p["kind"],
+                "purpose": "evaluation", "start": p["start"], "goal": p["goal"], "goal_pose": p["goal_pose"],
+                "stats": p["stats"]} for p in problems]
+    solutions = [p["solution"] for p in problems if p["success"]]
+    n = len(ds.joint_names)
+    record = SceneRecord(ds.scenes[i], info["scene_index"], ds.scene_split[i], ds.joint_names, ds.metadata[i],
+                         grids={n_e: ds.grid(i, n_e) for n_e in ds.resolutions},
+                         trajectories=ds.trajectories[ds.traj_scene == i].numpy(), episodes=episodes,
+                         eval_trajectories=np.stack(solutions) if solutions else np.zeros((0, 0, n)),
+                         eval_episodes=records, has_eval_topics=ds.has_eval_problems)
+    info.update(split=ds.scene_split[i], episodes=len(episodes), trajectories=len(record.trajectories))
+    if ds.has_eval_problems:
+        info.update(eval_problems=len(records), eval_solved=len(solutions))
+    else:  # written as a dataset from before stored evaluation problems
+        info = {k: v for k, v in info.items() if not k.startswith("eval_")}
+    return record, info
 
 
 def write_dataset(ds: Dataset, name: str | None = None, root: Path | None = None) -> Path:
@@ -107,17 +176,13 @@ def write_dataset(ds: Dataset, name: str | None = None, root: Path | None = None
     tmp = root / name / f".tmp-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir(parents=True)
     try:
-        first = 0
-        for i, scene in enumerate(ds.scenes):
-            info = ds.manifest["scenes"][i]
-            count = int((ds.traj_scene == i).sum())
-            episodes = [{k: v for k, v in e.items() if k != "scene"} for e in ds.episodes if e["scene"] == i]
-            grids = {n: ds.grid(i, n) for n in ds.resolutions}
-            write_scene_file(tmp / info["file"], scene, info["scene_index"], ds.scene_split[i], ds.joint_names, grids,
-                             episodes, list(ds.trajectories[first:first + count].numpy()), ds.metadata[i])
-            first += count
+        infos = []
+        for i in range(len(ds.scenes)):
+            record, info = _scene_record(ds, i)
+            write_scene_file(tmp / info["file"], record)
+            infos.append(info)
         m = ds.manifest
-        manifest = build_manifest(m["config"], m["config_hash"], m["seed"], m["robot"]["asset_hash"], m["scenes"],
+        manifest = build_manifest(m["config"], m["config_hash"], m["seed"], m["robot"]["asset_hash"], infos,
                                   parents=[f"{ds.name}@{ds.id}"])
         manifest.update(code_version=code_version(), versions=package_versions())
         return finalize_dataset(tmp, name, manifest, root)

@@ -1,8 +1,10 @@
 """Dataset generation: scenes planned in worker processes, sharded, resumable, merged into one dataset.
 
-The unit of work is a scene (`SceneJob`): draw it, compute its anchor grids, sample its problems, plan
-each with the expert and write `scene_NNNN.mcap` (atomically) with a small JSON sidecar of wall-clock
-planner times. Scene files collect in a work folder keyed by the spec's config hash,
+The unit of work is a scene (`SceneJob`): draw it, compute its anchor grids, sample its demonstration
+problems (train and val scenes) and, from a seed stream of their own, its evaluation problems (every
+scene), plan each with the same expert, and write `scene_NNNN.mcap` (atomically) with a small JSON
+sidecar of wall-clock planner times. Evaluation problems go on topics of their own, never into the
+training data (`samp.data.mcap_io`). Scene files collect in a work folder keyed by the spec's config hash,
 `<root>/<name>/.work/<hash16>/`, so:
   * shard i of n does the scenes with index % n == i; shards can run anywhere and at any time (with a
     shared file system they write side by side; otherwise copy their scene files together);
@@ -29,14 +31,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.data.mcap_io import write_scene_file
+from samp.data.mcap_io import SceneRecord, write_scene_file
 from samp.data.registry import FORMAT_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
+from samp.names import SPLIT_ALIASES, SPLITS
 
 __all__ = ["GenerationError", "generate", "merge", "work_dir"]
 
 TIMING_KEYS = ("planning_time", "solve_time", "simplify_time")  # wall clock: manifest only
+EVAL_PREFIX = "eval_"  # the evaluation problems' times in a sidecar: eval_planning_time, ...
 SIDECAR = ".json"
+# derive_seed(scene seed, KEY[, problem]): the seed streams of a scene's problems and plans. Demonstrations
+# and evaluation problems draw from different streams, so no evaluation problem repeats a demonstration.
+DEMO_PROBLEMS, DEMO_PLANS, EVAL_PROBLEMS, EVAL_PLANS = 1, 2, 3, 4
 
 
 class GenerationError(ValueError):
@@ -55,7 +62,7 @@ def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str) -> dict:
     """The `samp.dataset` metadata record of a scene file: deterministic, no times or versions."""
     return {"format_version": FORMAT_VERSION, "dataset": spec.name, "config_hash": spec.config_hash(),
             "robot": spec.robot, "robot_asset_hash": asset_hash, "scene_index": job.index, "split": job.split,
-            "generator": job.generator, "scene_seed": job.seed}
+            "generator": job.generator, "scene_namespace": spec.namespace, "scene_seed": job.seed}
 
 
 # ------------------------------------------------------------------------------------------ one scene
@@ -77,21 +84,50 @@ def _robot(name: str):
     return _ROBOTS[name]
 
 
-def _episode(result, index: int, kind: str, goal_pose) -> tuple[dict, dict]:
+def _episode(result, index: int, kind: str, goal_pose, purpose: str) -> tuple[dict, dict]:
     """PlanResult -> (episode record for the MCAP file, wall-clock times for the sidecar)."""
     as_list = lambda a: None if a is None else np.asarray(a, dtype=np.float64).tolist()  # noqa: E731
     stats = {k: v for k, v in result.stats.items() if k not in TIMING_KEYS}
     record = {"episode": index, "success": bool(result.success), "reason": result.reason, "kind": kind,
-              "start": as_list(result.q_start), "goal": as_list(result.q_goal), "goal_pose": as_list(goal_pose),
-              "stats": stats}
+              "purpose": purpose, "start": as_list(result.q_start), "goal": as_list(result.q_goal),
+              "goal_pose": as_list(goal_pose), "stats": stats}
     return record, {k: float(result.stats.get(k, 0.0)) for k in TIMING_KEYS}
+
+
+def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tuple[int, int], purpose: str, tick,
+                   where: str) -> tuple[list[dict], list[dict], list[np.ndarray]]:
+    """Sample `count` problems from the seed stream keys[0] and plan each (seed stream keys[1]) ->
+    (episode records, wall-clock times, (T, n) trajectories of the solved ones)."""
+    from samp.expert.planner import PlanResult, derive_seed
+    from samp.expert.problems import sample_problems
+
+    if count == 0:
+        return [], [], []
+    try:
+        problems = sample_problems(robot, scene, count, derive_seed(seed, keys[0]), cfg,
+                                   world=getattr(planner, "world", None))
+    except ValueError as err:
+        raise GenerationError(f"{where}: the scene cannot host valid planning problems: {err}. Change the "
+                              "spec's generators or generator_overrides, or lower the expert's clearance") from None
+    episodes, timings, trajectories = [], [], []
+    for i, p in enumerate(problems):
+        if p.q_goal is None:
+            result = PlanResult(False, None, p.reason, {"attempts": 0}, p.q_start)
+        else:
+            result = planner.plan(p.q_start, p.q_goal, seed=derive_seed(seed, keys[1], i))
+        record, times = _episode(result, i, p.kind, p.goal_pose, purpose)
+        episodes.append(record)
+        timings.append(times)
+        if result.success:
+            trajectories.append(result.trajectory)
+        tick()
+    return episodes, timings, trajectories
 
 
 def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
     """Generate one scene file into `out_dir`; returns its sidecar record. Threads are pinned to one so
     results do not depend on the number of workers."""
-    from samp.expert.planner import PlanResult, derive_seed, make_planner
-    from samp.expert.problems import sample_problems
+    from samp.expert.planner import make_planner
     from samp.scene.registry import scene_from_config
 
     spec, out = load_spec(spec_dict), Path(out_dir)
@@ -106,35 +142,33 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         except ValueError as err:
             raise GenerationError(f"{where}: {err}") from None
         grids = {n: scene.anchor_grid(n, cache=False) for n in spec.resolutions}
-        episodes, timings, trajectories = [], [], []
-        with make_planner(robot, scene, cfg) as planner:
-            try:
-                problems = sample_problems(robot, scene, spec.trajectories_per_scene, derive_seed(job.seed, 1), cfg,
-                                           world=getattr(planner, "world", None))
-            except ValueError as err:
-                raise GenerationError(f"{where}: the scene cannot host valid planning problems: {err}. Change the "
-                                      "spec's generators or generator_overrides, or lower the expert's clearance") from None
-            for i, p in enumerate(problems):
-                if p.q_goal is None:
-                    result = PlanResult(False, None, p.reason, {"attempts": 0}, p.q_start)
-                else:
-                    result = planner.plan(p.q_start, p.q_goal, seed=derive_seed(job.seed, 2, i))
-                record, times = _episode(result, i, p.kind, p.goal_pose)
-                episodes.append(record)
-                timings.append(times)
-                if result.success:
-                    trajectories.append(result.trajectory)
-                tick()
-        sidecar = {"scene_index": job.index, "name": scene.name, "generator": job.generator, "split": job.split,
-                   "file": job.file, "episodes": len(episodes), "trajectories": len(trajectories),
-                   **{k: [t[k] for t in timings] for k in TIMING_KEYS}}
+        with make_planner(robot, scene, cfg) as planner:  # the same expert, config and post-processing for both
+            episodes, timings, trajectories = _plan_problems(
+                robot, scene, planner, cfg, job.trajectories, job.seed, (DEMO_PROBLEMS, DEMO_PLANS), "demonstration",
+                tick, where)
+            eval_episodes, eval_timings, solutions = _plan_problems(
+                robot, scene, planner, cfg, job.eval_problems, job.seed, (EVAL_PROBLEMS, EVAL_PLANS), "evaluation",
+                tick, where)
+        sidecar = {"scene_index": job.index, "name": scene.name, "generator": job.generator, "seed": job.seed,
+                   "split": job.split, "content_hash": scene.content_hash(), "file": job.file,
+                   "episodes": len(episodes), "trajectories": len(trajectories),
+                   "eval_problems": len(eval_episodes), "eval_solved": len(solutions),
+                   **{k: [t[k] for t in timings] for k in TIMING_KEYS},
+                   **{EVAL_PREFIX + k: [t[k] for t in eval_timings] for k in TIMING_KEYS}}
         # The sidecar first: a scene counts as done when its MCAP file exists (renamed into place last).
         _write_json(out / (job.file + SIDECAR), sidecar)
-        write_scene_file(out / job.file, scene, job.index, job.split, list(robot.joint_names), grids, episodes,
-                         trajectories, _file_metadata(spec, job, robot.asset_hash))
+        write_scene_file(out / job.file, SceneRecord(
+            scene, job.index, job.split, list(robot.joint_names), _file_metadata(spec, job, robot.asset_hash),
+            grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
+            eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes))
         return sidecar
     finally:
         torch.set_num_threads(threads)
+
+
+def _stacked(trajectories: list[np.ndarray], n: int) -> np.ndarray:
+    """K (T, n) trajectories -> (K, T, n); (0, 0, n) for none."""
+    return np.stack(trajectories) if trajectories else np.zeros((0, 0, n))
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -166,8 +200,8 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     label = f"{spec.name}" + ("" if shard is None else f" shard {shard}/{num_shards}")
     if len(todo) < len(jobs):
         print(f"{label}: resuming, {len(jobs) - len(todo)} of {len(jobs)} scenes already done in {work}")
-    per_scene = spec.trajectories_per_scene
-    bar = tqdm(total=len(todo) * per_scene, desc=label, unit="traj", disable=not progress, smoothing=0.05)
+    plans = sum(j.trajectories + j.eval_problems for j in todo)  # demonstrations and evaluation problems
+    bar = tqdm(total=plans, desc=label, unit="plan", disable=not progress, smoothing=0.05)
     spec_dict = spec.resolved()
     spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__}
     try:
@@ -272,15 +306,26 @@ def _link_or_copy(src: Path, dst: Path) -> None:
 
 def build_manifest(config: dict, config_hash: str, seed: int, asset_hash: str, sidecars: list[dict],
                    parents: list[str]) -> dict:
-    """Everything a manifest records besides the file list, id, name, format version and time."""
+    """Everything a manifest records besides the file list, id, name, format version and time.
+
+    `scenes` lists every scene's sidecar: index, name, file, split, generator and seed, content hash,
+    counts of demonstrations (episodes, trajectories) and evaluation problems (eval_problems, eval_solved),
+    and the wall-clock planner times of both."""
     scenes = sorted(sidecars, key=lambda s: s["scene_index"])
-    split = {s: [x["name"] for x in scenes if x["split"] == s] for s in ("train", "heldout")}
-    times = [t for s in scenes for t in s.get("planning_time", [])]
-    counts = {"scenes": len(scenes), "train_scenes": len(split["train"]), "heldout_scenes": len(split["heldout"]),
-              "episodes": sum(s["episodes"] for s in scenes), "trajectories": sum(s["trajectories"] for s in scenes)}
+    # A rewritten legacy dataset's sidecars may say "heldout": it counts as "val".
+    split = {s: [x["name"] for x in scenes if SPLIT_ALIASES.get(x["split"], x["split"]) == s] for s in SPLITS}
+    counts = {"scenes": len(scenes), **{f"{s}_scenes": len(split[s]) for s in SPLITS},
+              "episodes": sum(s["episodes"] for s in scenes), "trajectories": sum(s["trajectories"] for s in scenes),
+              "eval_problems": sum(s.get("eval_problems", 0) for s in scenes),
+              "eval_solved": sum(s.get("eval_solved", 0) for s in scenes)}
     counts["failures"] = counts["episodes"] - counts["trajectories"]
+    counts["eval_failures"] = counts["eval_problems"] - counts["eval_solved"]
     return {"config": config, "config_hash": config_hash, "seed": seed,
             "robot": {"name": config["robot"], "asset_hash": asset_hash}, "parents": parents, "counts": counts,
-            "splits": split, "scenes": scenes,
-            "planning_time": {"total_s": float(np.sum(times)) if times else 0.0,
-                              "mean_s": float(np.mean(times)) if times else 0.0}}
+            "splits": split, "scenes": scenes, "planning_time": _time_summary(scenes, "planning_time"),
+            "eval_planning_time": _time_summary(scenes, EVAL_PREFIX + "planning_time")}
+
+
+def _time_summary(scenes: list[dict], key: str) -> dict:
+    times = [t for s in scenes for t in s.get(key, [])]
+    return {"total_s": float(np.sum(times)) if times else 0.0, "mean_s": float(np.mean(times)) if times else 0.0}

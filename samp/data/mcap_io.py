@@ -1,13 +1,20 @@
-"""One MCAP file per scene: its geometry, anchor grids, trajectories and per-episode records.
+"""One MCAP file per scene: its geometry, anchor grids, demonstrations, evaluation problems and records.
 
 Topics (log times are deterministic, so equal content gives equal bytes and an equal dataset id):
     /scene             foxglove.SceneUpdate   primitives for viewers (Foxglove, Rerun converters)
     /scene/spec        JSON (jsonschema)      the exact scene (`Scene.to_dict`), scene index and split
     /sdf/n<N>          foxglove.VoxelGrid     the anchor grid at n_e = N, float32 "distance", z-y-x order
-    /trajectory        foxglove.JointStates   one message per waypoint, log_time = episode * 1e6 + step
-    /episode           JSON (jsonschema)      one record per planning problem: start, goal, success,
-                                              reason, planner statistics
-and a `samp.dataset` metadata record. Chunks are zstd-compressed.
+    /trajectory        foxglove.JointStates   demonstrations: one message per waypoint,
+                                              log_time = episode * 1e6 + step
+    /episode           JSON (jsonschema)      one record per demonstration problem: start, goal, success,
+                                              reason, planner statistics ("purpose": "demonstration")
+    /eval/trajectory   foxglove.JointStates   the expert's solutions of the evaluation problems,
+                                              log_time = (E + problem) * 1e6 + step after the E episodes
+    /eval/episode      JSON (jsonschema)      one record per evaluation problem, the same schema
+                                              ("purpose": "evaluation")
+and a `samp.dataset` metadata record. Chunks are zstd-compressed. Evaluation problems live on their own
+topics so that nothing reading /episode and /trajectory (the DataModule's training data) can see them;
+in Foxglove they play after the demonstrations on one timeline.
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import register_schema
 
+from samp.names import SPLIT_ALIASES, SPLITS
 from samp.scene.model import Box, Cylinder, Scene, Sphere
 
 __all__ = ["EPISODE_SCHEMA", "SceneRecord", "read_scene_file", "write_scene_file"]
@@ -41,14 +49,18 @@ EPISODE_SCHEMA = {
     "required": ["episode", "success", "reason", "start", "goal", "stats"],
     "properties": {"episode": {"type": "integer"}, "success": {"type": "boolean"}, "reason": {"type": "string"},
                    "kind": {"enum": ["target", "workspace"]},
+                   "purpose": {"enum": ["demonstration", "evaluation"]},
                    "start": {"type": "array", "items": {"type": "number"}},
                    "goal": {"type": ["array", "null"], "items": {"type": "number"}},
                    "goal_pose": {"type": ["array", "null"], "items": {"type": "array"}},
                    "stats": {"type": "object"}},
 }
+FILE_SPLITS = (*SPLITS, *SPLIT_ALIASES)  # "heldout": files written before issue 17 (and their rewrites)
 SCENE_SPEC_SCHEMA = {"type": "object", "title": "samp.SceneSpec", "required": ["scene_index", "split", "scene"],
-                     "properties": {"scene_index": {"type": "integer"}, "split": {"enum": ["train", "heldout"]},
+                     "properties": {"scene_index": {"type": "integer"}, "split": {"enum": list(FILE_SPLITS)},
                                     "scene": {"type": "object"}}}
+# (episode records, waypoints) of the demonstrations and of the evaluation problems
+DEMO_TOPICS, EVAL_TOPICS = ("/episode", "/trajectory"), ("/eval/episode", "/eval/trajectory")
 
 
 @dataclass
@@ -63,7 +75,10 @@ class SceneRecord:
     resolutions: list[int] = field(default_factory=list)  # n_e of every grid in the file
     grids: dict[int, torch.Tensor] = field(default_factory=dict)  # n_e -> (n_e, n_e, n_e), indexed (x, y, z)
     trajectories: np.ndarray | None = None  # (E_ok, T, n) radians, successful episodes in episode order
-    episodes: list[dict] = field(default_factory=list)  # every episode, failures included
+    episodes: list[dict] = field(default_factory=list)  # every demonstration episode, failures included
+    eval_trajectories: np.ndarray | None = None  # (K_ok, T, n) the expert's solutions of the solved eval problems
+    eval_episodes: list[dict] = field(default_factory=list)  # every evaluation problem, failures included
+    has_eval_topics: bool = True  # False for files written before evaluation problems were stored
 
 
 def _pose(msg_pose, pose) -> None:
@@ -107,44 +122,71 @@ def _voxel_grid(grid: torch.Tensor, bounds) -> VoxelGrid:
     return msg
 
 
-def write_scene_file(path: Path, scene: Scene, scene_index: int, split: str, joint_names: list[str],
-                     grids: dict[int, torch.Tensor], episodes: list[dict], trajectories: list[np.ndarray],
-                     metadata: dict[str, str]) -> None:
+def _check_pairs(episodes: list[dict], trajectories, what: str) -> None:
+    solved = sum(e["success"] for e in episodes)
+    if solved != len(trajectories):
+        raise ValueError(f"{len(trajectories)} {what} trajectories for {solved} successful {what} episodes")
+
+
+def write_scene_file(path: Path, record: SceneRecord) -> None:
     """Write one scene's file to `path` (atomically: a temporary file renamed on success).
 
-    `episodes[i]` has keys of EPISODE_SCHEMA; successful ones, in order, pair with `trajectories` (T, n).
+    `record.episodes[i]` and `record.eval_episodes[i]` have keys of EPISODE_SCHEMA; the successful ones,
+    in order, pair with `record.trajectories` and `record.eval_trajectories` ((T, n) each).
     """
-    if split not in ("train", "heldout"):
-        raise ValueError(f"split must be 'train' or 'heldout', got {split!r}")
-    if sum(e["success"] for e in episodes) != len(trajectories):
-        raise ValueError(f"{len(trajectories)} trajectories for {sum(e['success'] for e in episodes)} successful episodes")
+    if record.split not in FILE_SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {record.split!r}")
+    trajectories = [] if record.trajectories is None else list(record.trajectories)
+    eval_trajectories = [] if record.eval_trajectories is None else list(record.eval_trajectories)
+    _check_pairs(record.episodes, trajectories, "demonstration")
+    _check_pairs(record.eval_episodes, eval_trajectories, "evaluation")
+    if record.eval_episodes and not record.has_eval_topics:
+        raise ValueError(f"{len(record.eval_episodes)} evaluation problems for a scene file without evaluation topics "
+                         "(has_eval_topics False, the layout of datasets written before issue 17)")
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)
         w.start(profile="", library="samp")
-        w.add_metadata("samp.dataset", {k: str(v) for k, v in metadata.items()})
-        ch = {}
-        for topic, msg_type in (("/scene", SceneUpdate), ("/trajectory", JointStates)):
-            ch[topic] = w.register_channel(topic, "protobuf", register_schema(w, msg_type))
-        for topic, schema in (("/scene/spec", SCENE_SPEC_SCHEMA), ("/episode", EPISODE_SCHEMA)):
-            sid = w.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
-            ch[topic] = w.register_channel(topic, "json", sid)
-        w.add_message(ch["/scene"], 0, _scene_update(scene).SerializeToString(), 0)
-        spec = {"scene_index": scene_index, "split": split, "scene": scene.to_dict(), "joint_names": joint_names}
+        w.add_metadata("samp.dataset", {k: str(v) for k, v in record.metadata.items()})
+        joint_states, episode = register_schema(w, JointStates), _json_schema(w, EPISODE_SCHEMA)
+        ch = {"/scene": w.register_channel("/scene", "protobuf", register_schema(w, SceneUpdate)),
+              "/scene/spec": w.register_channel("/scene/spec", "json", _json_schema(w, SCENE_SPEC_SCHEMA))}
+        # Both kinds of episode share the two schemas; a legacy scene rewritten keeps its lack of eval topics.
+        for records, waypoints in (DEMO_TOPICS, EVAL_TOPICS) if record.has_eval_topics else (DEMO_TOPICS,):
+            ch[records] = w.register_channel(records, "json", episode)
+            ch[waypoints] = w.register_channel(waypoints, "protobuf", joint_states)
+        w.add_message(ch["/scene"], 0, _scene_update(record.scene).SerializeToString(), 0)
+        spec = {"scene_index": record.scene_index, "split": record.split, "scene": record.scene.to_dict(),
+                "joint_names": record.joint_names}
         w.add_message(ch["/scene/spec"], 0, json.dumps(spec, sort_keys=True).encode(), 0)
-        for n_e, grid in sorted(grids.items()):
+        for n_e, grid in sorted(record.grids.items()):
             cid = w.register_channel(f"/sdf/n{n_e}", "protobuf", register_schema(w, VoxelGrid))
-            w.add_message(cid, 0, _voxel_grid(grid, scene.bounds).SerializeToString(), 0)
-        ok = iter(trajectories)
-        for e, episode in enumerate(episodes):
-            w.add_message(ch["/episode"], e * STEP_NS, json.dumps({**episode, "episode": e}, sort_keys=True).encode(), e * STEP_NS)
-            if episode["success"]:
-                for t, q in enumerate(next(ok)):
-                    msg = JointStates(joints=[JointState(name=name, position=float(v)) for name, v in zip(joint_names, q)])
-                    msg.timestamp.FromNanoseconds(e * STEP_NS + t)
-                    w.add_message(ch["/trajectory"], e * STEP_NS + t, msg.SerializeToString(), e * STEP_NS + t, sequence=t)
+            w.add_message(cid, 0, _voxel_grid(grid, record.scene.bounds).SerializeToString(), 0)
+        _write_episodes(w, [ch[t] for t in DEMO_TOPICS], record.episodes, trajectories, record.joint_names, 0)
+        if record.has_eval_topics:
+            _write_episodes(w, [ch[t] for t in EVAL_TOPICS], record.eval_episodes, eval_trajectories,
+                            record.joint_names, len(record.episodes))
         w.finish()
     tmp.replace(path)
+
+
+def _json_schema(w: Writer, schema: dict) -> int:
+    return w.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+
+
+def _write_episodes(w: Writer, channels: list[int], episodes: list[dict], trajectories: list[np.ndarray],
+                    joint_names: list[str], first: int) -> None:
+    """Episode records and the waypoints of the successful ones; episode e at log time (first + e) * STEP_NS."""
+    records, waypoints = channels
+    ok = iter(trajectories)
+    for e, episode in enumerate(episodes):
+        t0 = (first + e) * STEP_NS
+        w.add_message(records, t0, json.dumps({**episode, "episode": e}, sort_keys=True).encode(), t0)
+        if episode["success"]:
+            for t, q in enumerate(next(ok)):
+                msg = JointStates(joints=[JointState(name=name, position=float(v)) for name, v in zip(joint_names, q)])
+                msg.timestamp.FromNanoseconds(t0 + t)
+                w.add_message(waypoints, t0 + t, msg.SerializeToString(), t0 + t, sequence=t)
 
 
 def _grid_from_voxels(msg) -> torch.Tensor:
@@ -162,15 +204,17 @@ def read_scene_file(path: Path, resolutions: list[int] | None = None) -> SceneRe
             summary = reader.get_summary()
             if summary is None:
                 raise EOFError("the file has no summary section")
-            grid_topics = {c.topic: int(c.topic[len("/sdf/n"):]) for c in summary.channels.values()
-                           if c.topic.startswith("/sdf/n")}
+            topics = {c.topic for c in summary.channels.values()}
+            grid_topics = {t: int(t[len("/sdf/n"):]) for t in topics if t.startswith("/sdf/n")}
             wanted = [t for t, n in grid_topics.items() if resolutions is None or n in resolutions]
             metadata = {}
             for m in reader.iter_metadata():
                 if m.name == "samp.dataset":
                     metadata = dict(m.metadata)
-            record, waypoints, episodes, grids = None, {}, [], {}
-            for _, channel, message in reader.iter_messages(topics=["/scene/spec", "/episode", "/trajectory", *wanted],
+            record, grids = None, {}
+            episodes = {t: [] for t in (DEMO_TOPICS[0], EVAL_TOPICS[0])}  # topic -> records
+            waypoints = {t: {} for t in (DEMO_TOPICS[1], EVAL_TOPICS[1])}  # topic -> {log_time // STEP_NS: rows}
+            for _, channel, message in reader.iter_messages(topics=["/scene/spec", *episodes, *waypoints, *wanted],
                                                            log_time_order=False):  # file order: written in order
                 topic = channel.topic
                 if topic == "/scene/spec":
@@ -178,19 +222,25 @@ def read_scene_file(path: Path, resolutions: list[int] | None = None) -> SceneRe
                     record = SceneRecord(Scene.from_dict(spec["scene"]), spec["scene_index"], spec["split"], spec["joint_names"])
                 elif topic in grid_topics:
                     grids[grid_topics[topic]] = _grid_from_voxels(VoxelGrid.FromString(message.data))
-                elif topic == "/episode":
-                    episodes.append(json.loads(message.data))
+                elif topic in episodes:
+                    episodes[topic].append(json.loads(message.data))
                 else:
                     joints = JointStates.FromString(message.data).joints
-                    waypoints.setdefault(message.log_time // STEP_NS, []).append([j.position for j in joints])
+                    waypoints[topic].setdefault(message.log_time // STEP_NS, []).append([j.position for j in joints])
     except (McapError, EOFError, ValueError, KeyError, struct.error, DecodeError) as err:
         raise ValueError(f"{path} is not a readable samp scene file ({type(err).__name__}: {err}); it may be "
                          "truncated: run `python -m samp.data verify` on its dataset") from None
     if record is None:
         raise ValueError(f"{path} has no /scene/spec record; it is not a samp scene file")
     record.metadata, record.resolutions, record.grids = metadata, sorted(grid_topics.values()), grids
-    record.episodes = sorted(episodes, key=lambda e: e["episode"])
-    trajs = [np.asarray(waypoints[e]) for e in sorted(waypoints)]
     n = len(record.joint_names)
-    record.trajectories = np.stack(trajs) if trajs else np.zeros((0, 0, n))
+    record.episodes, record.trajectories = _decoded(episodes[DEMO_TOPICS[0]], waypoints[DEMO_TOPICS[1]], n)
+    record.eval_episodes, record.eval_trajectories = _decoded(episodes[EVAL_TOPICS[0]], waypoints[EVAL_TOPICS[1]], n)
+    record.has_eval_topics = EVAL_TOPICS[0] in topics
     return record
+
+
+def _decoded(episodes: list[dict], waypoints: dict[int, list], n: int) -> tuple[list[dict], np.ndarray]:
+    """Records in episode order, and (E_ok, T, n) the waypoints of the successful ones in the same order."""
+    trajs = [np.asarray(waypoints[e]) for e in sorted(waypoints)]
+    return sorted(episodes, key=lambda e: e["episode"]), (np.stack(trajs) if trajs else np.zeros((0, 0, n)))

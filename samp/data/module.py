@@ -5,14 +5,18 @@ waypoint as the goal. The dataset is opened once; every batch is gathered from c
 index (no per-sample decoding or Python objects), and the anchor grids of all scenes at the chosen n_e
 are held once in `grids` (S, n_e, n_e, n_e), indexed by each sample's scene.
 
-Splits are by scene or by trajectory, never by step (`val_split`): `heldout` validates on the held-out
-scenes (a fixed, seeded subset of at most `val_samples` steps); a number in (0, 1) validates on that
-fraction of the training scenes' trajectories instead. Training batches get Gaussian noise on q_t
+Splits are by scene or by trajectory, never by step (`val_split`): "val" validates on the validation
+scenes' demonstrations (a fixed, seeded subset of at most `val_samples` steps); a number in (0, 1) validates
+on that fraction of the training scenes' trajectories instead. Only demonstrations are read: test scenes
+have none, and the dataset's evaluation problems (`Dataset.eval_problems`) are never loaded here, so
+neither can reach training. Training batches get Gaussian noise on q_t
 (`noise` radians, clamped to the joint limits), and are drawn from at most `scenes_per_batch` scenes each
 so that the policy's 3D convolution runs once per distinct scene of a batch (0: plain random batches).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import pytorch_lightning as pl
@@ -21,7 +25,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from samp.data.binding import DatasetBinding
 from samp.names import (BATCH_GOAL, BATCH_NEXT, BATCH_Q, BATCH_SCENE, BATCH_START, BATCH_STEP, BATCH_STEP_CLEAN,
-                        BATCH_TRAJ)
+                        BATCH_TRAJ, SPLIT_ALIASES, SPLITS)
 
 __all__ = ["StepSamples", "TrajectoryDataModule"]
 
@@ -103,8 +107,9 @@ class TrajectoryDataModule(pl.LightningDataModule):
         n_e: the grid resolution (must be stored in the dataset).
         batch_size: samples per batch (the paper: 50). scenes_per_batch: distinct scenes per training batch
             (0: plain random batches). noise: std of the Gaussian noise on training q_t (radians).
-        val_split: "heldout" (validate on the held-out scenes) or a fraction in (0, 1) of the training
-            scenes' trajectories. val_samples: steps per validation pass (a fixed, seeded subset).
+        val_split: "val" (validate on the validation scenes' demonstrations; "heldout", its name before
+            issue 17, is a deprecated synonym) or a fraction in (0, 1) of the training scenes' trajectories.
+        val_samples: steps per validation pass (a fixed, seeded subset).
         max_trajectories: use at most this many training trajectories (None: all), for quick runs.
 
     After `setup`, `binding` is what a model trained on this data depends on (`DatasetBinding`). A missing
@@ -112,11 +117,17 @@ class TrajectoryDataModule(pl.LightningDataModule):
     """
 
     def __init__(self, dataset: str, n_e: int = 40, batch_size: int = 50, scenes_per_batch: int = 2,
-                 noise: float = 0.03, val_split: str | float = "heldout", val_samples: int = 2000,
+                 noise: float = 0.03, val_split: str | float = "val", val_samples: int = 2000,
                  max_trajectories: int | None = None, seed: int = 0, root: str | None = None):
         super().__init__()
-        if not (val_split == "heldout" or (isinstance(val_split, (int, float)) and 0 < val_split < 1)):
-            raise ValueError(f"val_split must be 'heldout' or a fraction in (0, 1), got {val_split!r}")
+        if val_split in SPLIT_ALIASES:
+            warnings.warn(f"val_split={val_split!r} is deprecated: write val_split='{SPLIT_ALIASES[val_split]}' (the "
+                          "validation scenes)", DeprecationWarning, stacklevel=2)
+            val_split = SPLIT_ALIASES[val_split]
+        if not (val_split == "val" or (isinstance(val_split, (int, float)) and not isinstance(val_split, bool)
+                                       and 0 < val_split < 1)):
+            raise ValueError(f"val_split must be 'val' (the validation scenes) or a fraction in (0, 1) of the training "
+                             f"trajectories, got {val_split!r}")
         if batch_size < 1 or scenes_per_batch < 0 or noise < 0:
             raise ValueError(f"batch_size >= 1, scenes_per_batch >= 0 and noise >= 0 expected; got {batch_size}, "
                              f"{scenes_per_batch}, {noise}")
@@ -154,11 +165,13 @@ class TrajectoryDataModule(pl.LightningDataModule):
         limits = torch.tensor([cfg.lower, cfg.upper], dtype=torch.float32).T
         g = torch.Generator().manual_seed(self.seed)
         train = torch.from_numpy(np.flatnonzero(ds.traj_split == "train"))
-        if self.val_split == "heldout":
-            val = torch.from_numpy(np.flatnonzero(ds.traj_split == "heldout"))
+        if self.val_split == "val":
+            val = torch.from_numpy(np.flatnonzero(ds.traj_split == "val"))
             if len(val) == 0:
-                raise ValueError(f"dataset {self.dataset_id} holds out no scenes; use data.val_split=0.1 to validate "
-                                 "on a fraction of the training trajectories")
+                per_split = {s: ds.scene_split.count(s) for s in SPLITS}
+                raise ValueError(f"dataset {self.dataset_id} has no validation demonstrations (scenes per split: "
+                                 f"{per_split}); use data.val_split=0.1 to validate on a fraction of the training "
+                                 "trajectories, or generate a dataset with val_scenes > 0")
         else:
             train = train[torch.randperm(len(train), generator=g)]
             cut = max(1, int(round(self.val_split * len(train))))

@@ -31,4 +31,12 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    import sys
+
+    from samp.data.spec import check_overrides
+
+    try:  # before Hydra, which would only say that the key is not in the config
+        check_overrides(sys.argv[1:])
+    except ValueError as err:
+        sys.exit(f"error: {err}")
     main()

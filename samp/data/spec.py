@@ -1,11 +1,14 @@
 """Dataset specs (`conf/dataset/*.yaml`): what to generate, validated, plus the scene list and its hash.
 
-A spec names a robot, how many training and held-out scenes, which scene generators (mixed round-robin
-in the order listed, so every split sees every generator), the trajectories per scene, the anchor-grid
-resolutions to store, the expert config and a seed. Everything a dataset contains follows from the
-resolved spec: scene i uses generator `generators[i % len(generators)]` and seed `derive_seed(seed, i)`;
-the last `heldout_scenes` scenes are held out. `config_hash` is sha256 over the resolved spec, including
-the full expert config and each generator's parameters, so a change anywhere gives a different hash.
+A spec names a robot, how many training, validation and test scenes, which scene generators (mixed
+round-robin over the scenes in the order listed), the expert demonstrations per
+training and validation scene, the evaluation problems per scene, the anchor-grid resolutions to store,
+the expert config and a seed. Everything a dataset contains follows from the resolved spec: scenes are
+ordered train, then val, then test; scene i uses generator `generators[i % len(generators)]` and seed
+`derive_seed(seed, namespace_key(scene_namespace), i)`, so two specs share scenes only when they share
+seed and namespace (by default the spec's name). Test scenes get no demonstrations: nothing of them can
+reach training. `config_hash` is sha256 over the resolved spec, including the full expert config and each
+generator's parameters, so a change anywhere gives a different hash.
 """
 
 from __future__ import annotations
@@ -24,7 +27,17 @@ from samp.expert.planner import derive_seed
 from samp.paths import conf_dir
 from samp.scene.registry import _load_config as load_generator_config
 
-__all__ = ["DatasetSpec", "SceneJob", "available_specs", "load_spec"]
+__all__ = ["DatasetSpec", "SceneJob", "available_specs", "check_overrides", "load_spec", "namespace_key"]
+
+# Keys of specs written before issue 17, and what replaced them.
+RETIRED_KEYS = {"heldout_scenes": "val_scenes and test_scenes (validation scenes drive the validation loss and the "
+                                  "choice of checkpoint; test scenes only the final evaluation)"}
+
+
+def namespace_key(namespace: str) -> int:
+    """A scene namespace -> a 64-bit int for `derive_seed` (sha256, stable across processes and machines;
+    Python's `hash()` of a string is salted per process)."""
+    return int.from_bytes(hashlib.sha256(namespace.encode()).digest()[:8], "big")
 
 
 @dataclass
@@ -34,9 +47,12 @@ class DatasetSpec:
     name: str = "???"
     robot: str = "panda"
     seed: int = 0
-    train_scenes: int = 3
-    heldout_scenes: int = 1
-    trajectories_per_scene: int = 24
+    scene_namespace: str | None = None  # scene seeds come from (seed, namespace, index); None: the spec's name
+    train_scenes: int = 3  # scenes with demonstrations to train on
+    val_scenes: int = 1  # scenes with demonstrations to validate on (loss, evaluation callback, checkpoint)
+    test_scenes: int = 0  # scenes with evaluation problems only, for the final evaluation
+    trajectories_per_scene: int = 24  # expert demonstrations per train and val scene
+    eval_problems_per_scene: int = 8  # evaluation problems per scene (every split), stored apart
     generators: list[str] = field(default_factory=lambda: ["tabletop"])  # mixed round-robin over scenes
     generator_overrides: dict[str, Any] = field(default_factory=dict)  # generator -> {parameter: value}
     resolutions: list[int] = field(default_factory=lambda: [40])  # anchor grids stored per scene (n_e)
@@ -45,7 +61,12 @@ class DatasetSpec:
 
     @property
     def num_scenes(self) -> int:
-        return self.train_scenes + self.heldout_scenes
+        return self.train_scenes + self.val_scenes + self.test_scenes
+
+    @property
+    def namespace(self) -> str:
+        """The scene namespace in effect: `scene_namespace`, or the spec's name."""
+        return self.scene_namespace or self.name
 
     def expert_config(self) -> ExpertConfig:
         base = OmegaConf.create(asdict(load_expert_config(self.expert)))  # plain: a typo in the overrides
@@ -59,6 +80,7 @@ class DatasetSpec:
     def resolved(self) -> dict:
         """The spec with the expert config and generator parameters spelled out (what the hash covers)."""
         out = asdict(self)
+        out["scene_namespace"] = self.namespace  # explicit, so leaving it out and naming it hash the same
         out["expert_config"] = asdict(self.expert_config())
         out["generator_configs"] = {g: self.generator_config(g) for g in self.generators}
         return out
@@ -67,12 +89,12 @@ class DatasetSpec:
         return hashlib.sha256(json.dumps(self.resolved(), sort_keys=True).encode()).hexdigest()
 
     def scene_jobs(self) -> list["SceneJob"]:
-        jobs = []
-        for i in range(self.num_scenes):
-            generator = self.generators[i % len(self.generators)]
-            split = "train" if i < self.train_scenes else "heldout"
-            jobs.append(SceneJob(i, generator, derive_seed(self.seed, i), split))
-        return jobs
+        """Every scene of the spec, in index order: train scenes, then val, then test."""
+        splits = ["train"] * self.train_scenes + ["val"] * self.val_scenes + ["test"] * self.test_scenes
+        key = namespace_key(self.namespace)
+        return [SceneJob(i, self.generators[i % len(self.generators)], derive_seed(self.seed, key, i), split,
+                         0 if split == "test" else self.trajectories_per_scene, self.eval_problems_per_scene)
+                for i, split in enumerate(splits)]
 
 
 @dataclass(frozen=True)
@@ -82,7 +104,9 @@ class SceneJob:
     index: int
     generator: str
     seed: int
-    split: str
+    split: str  # "train" | "val" | "test"
+    trajectories: int  # expert demonstrations to plan (0 in a test scene)
+    eval_problems: int  # evaluation problems to plan, stored apart from the demonstrations
 
     @property
     def file(self) -> str:
@@ -107,6 +131,10 @@ def load_spec(source: str | Path | dict | DictConfig) -> DatasetSpec:
         elif not path.is_file():
             raise FileNotFoundError(f"dataset spec {path} does not exist")
         raw = OmegaConf.load(path)
+    retired = sorted(set(raw) & set(RETIRED_KEYS)) if isinstance(raw, DictConfig) else []
+    if retired:
+        raise ValueError(f"dataset spec key {retired[0]!r} is retired: use {RETIRED_KEYS[retired[0]]}; "
+                         "see conf/dataset/quickstart.yaml")
     try:
         merged = OmegaConf.merge(OmegaConf.structured(DatasetSpec), raw)
         spec: DatasetSpec = OmegaConf.to_object(merged)
@@ -115,6 +143,16 @@ def load_spec(source: str | Path | dict | DictConfig) -> DatasetSpec:
                          f"{', '.join(DatasetSpec.__dataclass_fields__)}; see conf/dataset/quickstart.yaml") from None
     _check(spec)
     return spec
+
+
+def check_overrides(overrides: list[str]) -> None:
+    """Refuse a command-line override of a retired spec key (`dataset.heldout_scenes=1`), naming what
+    replaced it; Hydra alone would only say the key is not in the config."""
+    for override in overrides:
+        key = override.split("=", 1)[0].lstrip("+~").rsplit(".", 1)[-1]
+        if key in RETIRED_KEYS:
+            raise ValueError(f"{override!r}: {key!r} is retired; use {RETIRED_KEYS[key]} "
+                             "(dataset.val_scenes=N dataset.test_scenes=M)")
 
 
 def _check(spec: DatasetSpec) -> None:
@@ -128,10 +166,19 @@ def _check(spec: DatasetSpec) -> None:
     require(spec.name not in ("", "???") and "/" not in spec.name and "@" not in spec.name,
             f"name must be a plain folder name (no '/' or '@'), got {spec.name!r}")
     require(spec.robot in available_robots(), f"unknown robot {spec.robot!r}; available: {available_robots()}")
-    require(spec.train_scenes >= 0 and spec.heldout_scenes >= 0 and spec.num_scenes >= 1,
-            f"train_scenes and heldout_scenes must be >= 0 with at least one scene, got "
-            f"{spec.train_scenes} and {spec.heldout_scenes}")
-    require(spec.trajectories_per_scene >= 1, f"trajectories_per_scene must be >= 1, got {spec.trajectories_per_scene}")
+    require(spec.scene_namespace is None or spec.scene_namespace.strip() != "",
+            f"scene_namespace must be a non-empty string or null (the spec's name), got {spec.scene_namespace!r}")
+    counts = (spec.train_scenes, spec.val_scenes, spec.test_scenes)
+    require(min(counts) >= 0 and spec.num_scenes >= 1,
+            f"train_scenes, val_scenes and test_scenes must be >= 0 with at least one scene, got {counts}")
+    demos = spec.train_scenes + spec.val_scenes > 0
+    require(spec.trajectories_per_scene >= 1 or not demos,
+            f"trajectories_per_scene must be >= 1 when the spec has train or val scenes, got "
+            f"{spec.trajectories_per_scene}")
+    require(spec.trajectories_per_scene >= 0, f"trajectories_per_scene must be >= 0, got {spec.trajectories_per_scene}")
+    require(spec.eval_problems_per_scene >= (1 if spec.test_scenes else 0),
+            f"eval_problems_per_scene must be >= 0, and >= 1 when the spec has test scenes (they hold nothing else), "
+            f"got {spec.eval_problems_per_scene}")
     require(len(spec.generators) >= 1, "generators must list at least one scene generator")
     unknown = sorted(set(spec.generators) - set(available_generators()))
     require(not unknown, f"unknown scene generators {unknown}; available: {available_generators()}")

@@ -2,9 +2,9 @@
 metrics for the policy and the expert on the same problems, and Rerun recordings.
 
     from samp.eval import Problem, load_planner, evaluate, problems_from_dataset
-    problems = problems_from_dataset(open_dataset("quickstart"), "heldout", count=100, seed=0)
+    problems = problems_from_dataset(open_dataset("standard"), "test", count=100, seed=0)  # or "train", "val"
     result = evaluate(load_planner("runs/EXP/TIME"), problems)   # or load_planner("expert")
-    result["metrics"]["heldout"]["success_rate"]
+    result["metrics"]["test"]["success_rate"]
 
 Names are imported on first use, so `python -m samp.eval` fails fast on a bad config.
 """

@@ -71,9 +71,9 @@ class ExpertTrajectoryPlanner:
 
     def plan(self, problem) -> PlannedTrajectory:
         if self.mode == "replay":
-            reason = getattr(problem, "expert_reason", None)
-            if problem.expert_trajectory is None and reason:  # the expert failed this stored problem: say why
-                return PlannedTrajectory(None, problem.expert_time, f"expert failed when the dataset was made: {reason}")
+            if problem.expert_trajectory is None and problem.expert_reason:  # the expert failed on it when stored
+                return PlannedTrajectory(None, problem.expert_time, f"expert failed when the dataset was made: "
+                                                                    f"{problem.expert_reason}")
             if problem.expert_trajectory is None:
                 raise ValueError(f"problem {problem.name or '(unnamed)'} has no expert trajectory to replay; take "
                                  "problems from a dataset (samp.eval.problems_from_dataset) or use mode='plan'")

@@ -1,13 +1,13 @@
 """Evaluation problems: start and goal pairs in a scene, with the expert's answer kept for comparison.
 
-`problems_from_dataset(ds, split, count, seed)` takes the problems of one scene split of a dataset:
-the start and goal of expert trajectories in the training scenes ("train") or in the held-out scenes
-("heldout"), so the expert's own trajectory and planning time come with each problem. The choice is
-fixed by `seed`: problems are spread as evenly as possible over the split's scenes (a seeded draw within
-each scene), then ordered by scene and episode, so a rollout batch visits one scene after another.
-
-Note: every trajectory of a training scene may have been seen in training; the held-out split is the
-generalisation test (DESIGN section 4 reports the two separately).
+`problems_from_dataset(ds, split, count, seed)` takes the evaluation problems a dataset stores for the
+scenes of one split ("train", "val" or "test"): problems sampled and planned by the expert like the
+demonstrations, but from a seed stream of their own and stored apart from them, so no policy trained on
+the dataset has seen them; the expert's solution and planning time come with each (or the reason it
+failed). "train" therefore measures new problems in seen scenes, "val" the scenes that chose the
+checkpoint, "test" scenes seen by nothing before (DESIGN section 4). The choice is fixed by `seed`:
+problems are spread as evenly as possible over the split's scenes (a seeded draw within each scene),
+then ordered by scene and problem, so a rollout batch visits one scene after another.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from samp.eval.names import SPLITS
+from samp.names import SPLIT_ALIASES
 
 __all__ = ["GridSource", "Problem", "dataset_grids", "problems_from_dataset", "scene_grids"]
 
@@ -41,12 +42,14 @@ class Problem:
     Args:
         scene: the `Scene`.
         q_start, q_goal: (n,) configurations; the goal pose is the end-effector pose at q_goal.
-        split: "train" | "heldout" for dataset problems; metrics are reported per split.
-        name: where it came from (dataset, scene, episode), for records and recordings.
+        split: "train" | "val" | "test" for dataset problems; metrics are reported per split.
+        name: where it came from (dataset, scene, problem), for records and recordings.
         scene_index: the scene's index in its dataset (None for a free-standing problem).
         robot: the robot name the problem was made for (checked against the planner's robot), or None.
-        expert_trajectory: (W, n) the expert's solution, or None.
+        expert_trajectory: (W, n) the expert's solution, or None (not planned, or the expert failed).
         expert_time: the expert's planning time in seconds, or None.
+        expert_reason: why the expert failed on this problem (None when it solved it or never tried).
+        scene_hash: the scene's identity, `Scene.content_hash()` (filled in from the scene when not given).
     """
 
     scene: object
@@ -58,9 +61,13 @@ class Problem:
     robot: str | None = None
     expert_trajectory: np.ndarray | None = field(default=None, repr=False)
     expert_time: float | None = None
+    expert_reason: str | None = None
+    scene_hash: str | None = None
 
     def __post_init__(self):
         self.q_start, self.q_goal = _config(self.q_start, "q_start"), _config(self.q_goal, "q_goal")
+        if self.scene_hash is None and hasattr(self.scene, "content_hash"):
+            self.scene_hash = self.scene.content_hash()
         if self.q_start.shape != self.q_goal.shape:
             raise ValueError(f"q_start and q_goal must have the same length, got {self.q_start.shape} and {self.q_goal.shape}")
         if self.expert_trajectory is not None:
@@ -86,42 +93,47 @@ def _spread(available: list[int], count: int, rng: np.random.Generator) -> list[
 
 
 def problems_from_dataset(ds, split: str, count: int | None = None, seed: int = 0) -> list[Problem]:
-    """Up to `count` problems (None: all) from the expert trajectories of the dataset's `split` scenes.
+    """Up to `count` (None: all) of the evaluation problems the dataset stores for its `split` scenes
+    ("train" | "val" | "test"; "heldout", the name before issue 17, reads as "val"), with the expert's
+    solution and planning time, or its failure reason in `expert_reason`. Problems for which no valid goal
+    was found are left out (there is nothing to plan).
 
-    Raises ValueError when the dataset has no scenes (or no solved trajectories) in that split.
+    Raises ValueError when the dataset predates stored evaluation problems, has no scenes in that split,
+    or no problems in them.
     """
-    if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    if split not in SPLITS and split not in SPLIT_ALIASES:
+        raise ValueError(f"split must be one of {SPLITS} (or the older 'heldout', read as 'val'), got {split!r}")
+    split = SPLIT_ALIASES.get(split, split)
     if count is not None and count < 1:
         raise ValueError(f"problems must be a positive count (or null for all), got {count}")
-    scenes = ds.scene_indices(split)
     label = f"dataset {ds.name}@{ds.id}"
+    if not ds.has_eval_problems:
+        raise ValueError(f"{label} predates stored evaluation problems (its problems would be its own training "
+                         f"demonstrations); regenerate it with `python -m samp.data generate dataset={ds.name}`")
+    scenes = ds.scene_indices(split)
     if not scenes:
         counts = {s: ds.scene_split.count(s) for s in SPLITS}
-        other = next(s for s in SPLITS if s != split)
-        raise ValueError(f"{label} has no {'held-out' if split == 'heldout' else 'training'} scenes (scenes per split: "
-                         f"{counts}); evaluate split={other}, or generate a dataset with "
-                         f"{'heldout_scenes' if split == 'heldout' else 'train_scenes'} > 0")
-    # Trajectories are stored per scene in episode order, successes only: pair them with their episodes.
-    solved = {i: [e for e in ds.episodes if e["scene"] == i and e["success"]] for i in scenes}
-    first = {i: int(np.flatnonzero(ds.traj_scene.numpy() == i)[0]) if solved[i] else 0 for i in scenes}
-    available = [len(solved[i]) for i in scenes]
+        others = [s for s in SPLITS if s != split and counts[s]]
+        raise ValueError(f"{label} has no {split} scenes (scenes per split: {counts}); evaluate "
+                         f"{' or '.join(f'split={s}' for s in others) or 'another dataset'}, or generate a dataset "
+                         f"with {split}_scenes > 0")
+    stored = {i: [p for p in ds.eval_problems if p["scene"] == i and p["goal"] is not None] for i in scenes}
+    available = [len(stored[i]) for i in scenes]
     if sum(available) == 0:
-        raise ValueError(f"{label} has {split} scenes but no solved expert trajectories in them to take problems from")
+        raise ValueError(f"{label} has {split} scenes but no evaluation problems with a valid goal in them; generate "
+                         "a dataset with eval_problems_per_scene > 0")
     rng = np.random.default_rng(seed)
     take = _spread(available, sum(available) if count is None else count, rng)
-    times = {s["scene_index"]: s.get("planning_time") for s in ds.manifest.get("scenes", [])}
     robot = ds.manifest.get("robot", {}).get("name")
     problems = []
     for i, k in zip(scenes, take):
-        for j in sorted(rng.choice(len(solved[i]), size=k, replace=False).tolist()):
-            episode = solved[i][j]
-            traj = ds.trajectories[first[i] + j].numpy()
-            t = times.get(i)
-            problems.append(Problem(ds.scenes[i], traj[0], traj[-1], split=split, scene_index=i, robot=robot,
-                                    name=f"{ds.name}@{ds.id}/scene{i}/episode{episode['episode']}",
-                                    expert_trajectory=traj,
-                                    expert_time=None if t is None else float(t[episode["episode"]])))
+        for j in sorted(rng.choice(len(stored[i]), size=k, replace=False).tolist()):
+            p = stored[i][j]
+            problems.append(Problem(ds.scenes[i], p["start"], p["goal"], split=split, scene_index=i, robot=robot,
+                                    name=f"{ds.name}@{ds.id}/scene{i}/problem{p['index']}",
+                                    expert_trajectory=p["solution"], expert_time=p["planning_time"],
+                                    expert_reason=None if p["success"] else p["reason"],
+                                    scene_hash=ds.scene_hashes[i]))
     return problems
 
 

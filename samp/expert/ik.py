@@ -20,14 +20,14 @@ from samp.expert.config import IKConfig
 
 RESTART_ERROR = 0.02  # a seed whose pose error (metres + radians, 6D norm) is above this at a restart is redrawn
 
-__all__ = ["IKResult", "rotation_angle", "solve_ik", "pose_errors", "geometric_jacobian"]
+__all__ = ["IKResult", "geometric_jacobian", "limits_inward", "pose_errors", "rotation_angle", "solve_ik"]
 
 
 @dataclass
 class IKResult:
     """Solutions for K target poses with S seeds each."""
 
-    q: torch.Tensor  # (K, S, n) radians, within the joint limits
+    q: torch.Tensor  # (K, S, n) radians, within the exact joint limits (also after conversion to float64)
     position_error: torch.Tensor  # (K, S) metres
     rotation_error: torch.Tensor  # (K, S) radians
     converged: torch.Tensor  # (K, S) bool, within the configured tolerances
@@ -83,11 +83,25 @@ def _dls_step(J: torch.Tensor, e: torch.Tensor, damped_eye: torch.Tensor) -> tor
     return (J.transpose(1, 2) @ torch.linalg.solve(J @ J.transpose(1, 2) + damped_eye, e[..., None]))[..., 0]
 
 
+def limits_inward(robot) -> tuple[torch.Tensor, torch.Tensor]:
+    """(n,) lower and (n,) upper joint limits in the robot's dtype, rounded inward.
+
+    Rounded to the nearest float32, a limit can move outward by up to ~1e-7 rad; a configuration clamped
+    onto it would then lie beyond the exact (float64) limit, which the World forgives (LIMIT_TOLERANCE)
+    but OMPL's bounds check refuses ("invalid bounds"). Rounded inward, every clamped configuration,
+    converted to float64, is within the limits the planner uses."""
+    exact = robot.joint_limits.to(dtype=torch.float64, device=robot.device)  # (n, 2), from the config
+    lo, hi = exact.to(robot.dtype).unbind(-1)
+    lo = torch.where(lo.double() < exact[:, 0], torch.nextafter(lo, torch.full_like(lo, float("inf"))), lo)
+    hi = torch.where(hi.double() > exact[:, 1], torch.nextafter(hi, torch.full_like(hi, float("-inf"))), hi)
+    return lo, hi
+
+
 def _random_q(robot, shape: tuple[int, ...], generator: torch.Generator) -> torch.Tensor:
     """(*shape, n) configurations uniform within the joint limits."""
-    lo, hi = robot.joint_limits.to(robot.dtype).unbind(-1)
+    lo, hi = limits_inward(robot)
     u = torch.rand(*shape, robot.dof, generator=generator, dtype=robot.dtype)
-    return lo + u * (hi - lo)
+    return torch.minimum(torch.maximum(lo + u * (hi - lo), lo), hi)  # lo + u (hi - lo) can round past hi
 
 
 def solve_ik(robot, targets: torch.Tensor, cfg: IKConfig | None = None, *, generator: torch.Generator,
@@ -108,7 +122,7 @@ def solve_ik(robot, targets: torch.Tensor, cfg: IKConfig | None = None, *, gener
         q_init = torch.as_tensor(q_init, dtype=robot.dtype).expand(K, -1, n) if q_init.ndim == 2 else q_init
         m = min(q_init.shape[1], S)
         q[:, :m] = q_init[:, :m].to(robot.dtype)
-    lo, hi = robot.joint_limits.to(robot.dtype).unbind(-1)
+    lo, hi = limits_inward(robot)
     q = q.reshape(K * S, n).clamp(lo, hi)
     flat_targets = targets[:, None].expand(K, S, 4, 4).reshape(K * S, 4, 4)
     joints = _joint_axes(robot)

@@ -2,7 +2,9 @@
 
 `ExpertPlanner(robot, scene, cfg).plan(q_start, q_goal, seed)`:
   1. rejects a start or goal outside the joint limits or closer than `clearance` to an obstacle (or in
-     self-collision), with the reason;
+     self-collision), with the reason; one within `LIMIT_TOLERANCE` (1e-6 rad, rounding) beyond a limit is
+     moved onto it first, since OMPL's bounds check tolerates nothing and would refuse it as "invalid
+     bounds" after spending every attempt;
   2. takes the straight joint-space motion when it is valid (the shortest path; it also sidesteps
      AORRTC's zero-length-path error on such problems in ompl 2.0.1), otherwise plans with the
      configured OMPL planner (states `clearance` clear of obstacles, motions checked every `resolution`
@@ -95,12 +97,16 @@ class ExpertPlanner:
 
     def endpoint_problem(self, q: np.ndarray | None, name: str) -> str:
         """Why q (n,) cannot be a start or goal ("" if it can)."""
+        from samp.sim.world import LIMIT_TOLERANCE
+
         if q is None:
             return f"no valid {name}"
         if self.world.outside_limits(q[None])[0]:
             lim = self.robot.joint_limits.double().cpu().numpy()
-            bad = [self.robot.joint_names[j] for j in np.flatnonzero((q < lim[:, 0]) | (q > lim[:, 1]))]
-            return f"{name} outside the joint limits at {bad}"
+            beyond = np.maximum(lim[:, 0] - q, q - lim[:, 1])  # (n,) radians past the nearer limit
+            bad = [self.robot.joint_names[j] for j in np.flatnonzero(beyond > LIMIT_TOLERANCE)]
+            return (f"{name} outside the joint limits at {bad}: {float(beyond.max()):.3g} rad beyond (only "
+                    f"{LIMIT_TOLERANCE:g} rad of rounding is moved onto a limit)")
         if self.valid(q[None])[0]:
             return ""
         d = float(self.world.min_distance(q[None])[0])
@@ -127,6 +133,9 @@ class ExpertPlanner:
         reason = self.endpoint_problem(q_start, "start") or self.endpoint_problem(q_goal, "goal")
         if reason:
             return finish(False, None, reason)
+        clipped = self._onto_limits(q_start), self._onto_limits(q_goal)
+        stats["endpoint_clip"] = float(max(np.abs(clipped[0] - q_start).max(), np.abs(clipped[1] - q_goal).max()))
+        q_start, q_goal = clipped  # what is planned between, returned, and the trajectory's first and last waypoint
         direct = cfg.direct and bool(self.valid(segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]).all())
         for attempt in range(cfg.attempts):
             stats["attempts"] = attempt + 1
@@ -142,6 +151,13 @@ class ExpertPlanner:
                       f"{cfg.check_margin} m to an obstacle or in self-collision")
             direct = False  # the straight motion passed at `resolution` but not densely: plan around it
         return finish(False, None, reason)
+
+    def _onto_limits(self, q: np.ndarray) -> np.ndarray:
+        """q (n,) within LIMIT_TOLERANCE of the limits -> q on or within them. A configuration stored from a
+        float32 computation can sit a rounding error (~1e-8 rad) beyond a limit: the World accepts it, OMPL's
+        `satisfiesBounds` does not."""
+        lim = self.robot.joint_limits.double().cpu().numpy()
+        return np.clip(q, lim[:, 0], lim[:, 1])
 
     def _attempt(self, q_start, q_goal, seed: int, direct: bool, stats: dict) -> tuple[np.ndarray | None, str]:
         """One attempt: (path (m, n), "") or (None, reason)."""

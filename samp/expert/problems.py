@@ -12,7 +12,9 @@ Each goal gets `poses_per_goal` poses per round, solved by batched IK (`samp.exp
 configurations clear of obstacles by the planner's clearance; the goal is the solution nearest to the
 start (`goal_select`). A goal without one gets fresh poses for up to `goal_rounds` rounds and otherwise
 stays unsolved with its reason. Starts are the previous goal (`start: chain`) or random collision-free
-configurations. Everything is drawn from `seed`: the same seed gives the same problems.
+configurations. Everything is drawn from `seed`: the same seed gives the same problems. Every start and
+goal lies within the robot's exact (float64) joint limits, whatever the robot's dtype (IK clamps to the
+limits rounded inward, `samp.expert.ik.limits_inward`), so the expert's OMPL bounds accept all of them.
 """
 
 from __future__ import annotations

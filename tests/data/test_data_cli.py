@@ -15,9 +15,10 @@ import pytest
 from samp.data.generation import work_dir
 from samp.data.spec import load_spec
 
-OVERRIDES = ["+dataset=quickstart", "dataset.name=resumed", "dataset.train_scenes=2", "dataset.heldout_scenes=1",
-             "dataset.trajectories_per_scene=3", "dataset.generators=[tabletop]", "dataset.resolutions=[8]"]
-SPEC = {"name": "resumed", "train_scenes": 2, "heldout_scenes": 1, "trajectories_per_scene": 3,
+OVERRIDES = ["+dataset=quickstart", "dataset.name=resumed", "dataset.train_scenes=2", "dataset.val_scenes=1",
+             "dataset.trajectories_per_scene=3", "dataset.eval_problems_per_scene=1", "dataset.generators=[tabletop]",
+             "dataset.resolutions=[8]"]
+SPEC = {"name": "resumed", "train_scenes": 2, "val_scenes": 1, "trajectories_per_scene": 3, "eval_problems_per_scene": 1,
         "generators": ["tabletop"], "resolutions": [8]}
 
 
@@ -54,6 +55,7 @@ def test_killed_generation_resumes_without_redoing_finished_scenes(resumed):
     assert result.returncode == 0, result.stderr
     assert 1 <= len(done) < 3, done
     assert f"resuming, {len(done)} of 3 scenes already done" in result.stdout
+    assert "3 scenes (2 train, 1 val, 0 test), " in result.stdout and " 3 evaluation problems (" in result.stdout
     (folder,) = [p for p in (root / "resumed").iterdir() if not p.name.startswith(".")]
     for name in done:  # merged by hard link: the very file the killed run wrote
         assert os.stat(folder / name).st_ino == inodes[name]
@@ -67,13 +69,15 @@ def test_ls_show_verify_inspect(resumed):
     assert ls.returncode == 0 and re.search(r"resumed@[0-9a-f]{12}\s", ls.stdout), ls.stdout
     ident = re.search(r"resumed@([0-9a-f]{12})", ls.stdout).group(1)
     show = _run("show", f"resumed@{ident[:6]}", f"root={root}")
-    assert show.returncode == 0 and f'"id": "{ident}"' in show.stdout and '"heldout": [' in show.stdout
+    assert show.returncode == 0 and f'"id": "{ident}"' in show.stdout and '"val": [' in show.stdout
+    assert '"eval_problems": 3' in show.stdout and '"test_scenes": 0' in show.stdout
     verify = _run("verify", "resumed", f"root={root}")
     assert verify.returncode == 0 and "every file matches" in verify.stdout
     inspect = _run("inspect", "resumed", f"root={root}")
     assert inspect.returncode == 0, inspect.stderr
-    for text in ("foxglove.JointStates", "foxglove.VoxelGrid", "foxglove.SceneUpdate", "success rate per generator"):
-        assert text in inspect.stdout
+    for text in ("foxglove.JointStates", "foxglove.VoxelGrid", "foxglove.SceneUpdate", "success rate per generator",
+                 "/eval/episode", "/eval/trajectory", "3 scenes (2 train, 1 val, 0 test)"):
+        assert text in inspect.stdout, text
 
 
 def test_verify_cli_names_the_changed_file(resumed):
@@ -102,6 +106,8 @@ def test_merge_names_missing_scenes(tmp_path):
     (("generate", "+dataset=nope"), "nope"),
     (("generate", "+dataset=quickstart", "workers=0"), "workers must be >= 1"),
     (("verify",), "say which dataset"),
+    (("generate", "+dataset=quickstart", "dataset.heldout_scenes=1"),
+     "'heldout_scenes' is retired; use val_scenes and test_scenes"),
 ])
 def test_bad_input_exits_2(tmp_path, args, message):
     result = _run(*args, f"root={tmp_path}")

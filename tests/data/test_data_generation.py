@@ -1,5 +1,6 @@
 """Generated datasets: collision-free trajectories by an independent check, determinism, verification,
-round trips, the plain MCAP reader, and clear errors on bad input."""
+round trips, the plain MCAP reader, three splits with evaluation problems stored apart from the
+demonstrations, scene identity, legacy datasets, and clear errors on bad input."""
 
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ from samp.data import (DatasetError, GenerationError, generate, load_spec, open_
                        verify_dataset, write_dataset)
 from samp.data.mcap_io import read_scene_file
 
-TINY = {"name": "tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "heldout_scenes": 1,
-        "trajectories_per_scene": 3, "generators": ["tabletop", "shelf"], "resolutions": [12, 16]}
+TINY = {"name": "tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "val_scenes": 1, "test_scenes": 1,
+        "trajectories_per_scene": 3, "eval_problems_per_scene": 2, "generators": ["tabletop", "shelf"],
+        "resolutions": [12, 16]}
 
 
 @pytest.fixture(scope="module")
@@ -47,14 +49,17 @@ def _surface_points(robot, per_link: int = 250) -> dict[str, torch.Tensor]:
 
 
 def test_trajectories_clear_by_an_independent_check(tiny, robots):
-    """Every stored trajectory, interpolated finely in joint space, keeps points on the link surfaces
-    outside every obstacle by the scene's analytic SDF (not pybullet, which the expert used)."""
+    """Every stored trajectory (demonstrations and the expert's solutions of the evaluation problems),
+    interpolated finely in joint space, keeps points on the link surfaces outside every obstacle by the
+    scene's analytic SDF (not pybullet, which the expert used)."""
     folder, _ = tiny
     ds, robot = open_dataset(folder), robots["panda"]
-    assert len(ds) >= 4, "the tiny spec should solve most of its 6 problems"
+    assert len(ds) >= 4, "the tiny spec should solve most of its 6 demonstration problems"
+    solved = [(p["solution"], p["scene"]) for p in ds.eval_problems if p["success"]]
+    assert len(solved) >= 4, "the tiny spec should solve most of its 6 evaluation problems"
     surface = _surface_points(robot)
     worst = np.inf
-    for traj, scene_index in zip(ds.trajectories.numpy(), ds.traj_scene.tolist()):
+    for traj, scene_index in [*zip(ds.trajectories.numpy(), ds.traj_scene.tolist()), *solved]:
         dense = _interpolate(traj, 0.008)  # finer than the expert's own check (0.02 rad, Euclidean)
         poses = robot.fk(torch.from_numpy(dense))
         for name, pts in surface.items():
@@ -74,21 +79,86 @@ def test_trajectories_start_and_end_at_their_problem(tiny):
         np.testing.assert_array_equal(traj[-1], e["goal"])
     failed = [e for e in ds.episodes if not e["success"]]
     assert all(e["reason"] for e in failed), "a failure without its reason"
+    for p in ds.eval_problems:
+        if p["success"]:
+            assert p["solution"].shape == (50, 7) and p["solution"].dtype == np.float64 and p["reason"] == ""
+            np.testing.assert_array_equal(p["solution"][0], p["start"])
+            np.testing.assert_array_equal(p["solution"][-1], p["goal"])
+            assert p["planning_time"] > 0
+        else:
+            assert p["solution"] is None and p["reason"], "a failed evaluation problem without its reason"
 
 
 def test_manifest_names_splits_and_counts(tiny):
     folder, root = tiny
     m = read_manifest(folder)
     assert folder == root / "tiny" / m["id"]
-    assert m["counts"]["scenes"] == 2 and m["counts"]["episodes"] == 6
-    assert m["splits"]["heldout"] == [m["scenes"][1]["name"]] and m["splits"]["train"] == [m["scenes"][0]["name"]]
+    counts = {k: m["counts"][k] for k in ("scenes", "train_scenes", "val_scenes", "test_scenes", "episodes",
+                                          "eval_problems")}
+    assert counts == {"scenes": 3, "train_scenes": 1, "val_scenes": 1, "test_scenes": 1, "episodes": 6,
+                      "eval_problems": 6}, counts
+    assert {s: m["splits"][s] for s in ("train", "val", "test")} == {
+        "train": [m["scenes"][0]["name"]], "val": [m["scenes"][1]["name"]], "test": [m["scenes"][2]["name"]]}
     assert m["config_hash"] == load_spec(TINY).config_hash()
     assert m["robot"]["name"] == "panda" and len(m["robot"]["asset_hash"]) == 64
     assert {"git_commit", "git_dirty", "package"} <= set(m["code_version"])
     assert all(len(s["planning_time"]) == s["episodes"] for s in m["scenes"])
+    assert all(len(s["eval_planning_time"]) == s["eval_problems"] for s in m["scenes"])
+    jobs = load_spec(TINY).scene_jobs()
+    for s, job in zip(m["scenes"], jobs):  # every scene: split, generator and seed, counts of both kinds
+        assert (s["split"], s["generator"], s["seed"]) == (job.split, job.generator, job.seed)
+        assert (s["episodes"], s["eval_problems"]) == ((0, 2) if job.split == "test" else (3, 2)), s
     ds = open_dataset(folder)
-    assert ds.scene_split == ["train", "heldout"]
+    assert ds.scene_split == ["train", "val", "test"] and ds.legacy_splits is False
     assert list(ds.traj_split) == [ds.scene_split[i] for i in ds.traj_scene.tolist()]
+    assert 2 not in ds.traj_scene.tolist() and not [e for e in ds.episodes if e["scene"] == 2], \
+        "a test scene holds no demonstrations"
+    assert [(p["scene"], p["index"], p["split"]) for p in ds.eval_problems] == [
+        (i, k, split) for i, split in enumerate(("train", "val", "test")) for k in range(2)]
+
+
+def test_manifest_scene_hashes_are_the_decoded_scenes_content_hashes(tiny):
+    folder, _ = tiny
+    ds = open_dataset(folder)
+    stored = [s["content_hash"] for s in read_manifest(folder)["scenes"]]
+    decoded = [read_scene_file(folder / s["file"], resolutions=[]).scene.content_hash() for s in ds.manifest["scenes"]]
+    assert stored == decoded == ds.scene_hashes == [scene.content_hash() for scene in ds.scenes]
+    assert len(set(stored)) == 3, "three different scenes"
+
+
+def test_evaluation_problems_are_stored_apart_from_the_training_data(tiny):
+    """Every evaluation problem is stored (start, goal, the expert's solution), and none of it is in
+    `ds.trajectories` or `ds.episodes`: compared by value, no demonstration starts or ends where an
+    evaluation problem does, and no solution is a demonstration."""
+    ds = open_dataset(tiny[0])
+    assert len(ds.eval_problems) == 6 and len(ds.episodes) == 6
+    demos = ds.trajectories.numpy()  # (N, 50, 7)
+    for p in ds.eval_problems:
+        start, goal = np.asarray(p["start"]), np.asarray(p["goal"])
+        assert not (demos[:, 0] == start).all(axis=1).any(), f"evaluation problem {p['index']} starts a demonstration"
+        assert not (demos[:, -1] == goal).all(axis=1).any(), f"evaluation problem {p['index']} ends a demonstration"
+        if p["success"]:
+            assert not any(np.array_equal(p["solution"], d) for d in demos)
+    starts = {tuple(e["start"]) for e in ds.episodes}
+    assert not starts & {tuple(p["start"]) for p in ds.eval_problems}
+    assert {e["purpose"] for e in ds.episodes} == {"demonstration"}
+
+
+def test_scene_identity_follows_the_namespace(tiny):
+    """Scene seeds come from (seed, namespace, index): specs with different names and the same seed draw
+    different scenes, unless they name the same scene_namespace."""
+    from samp.scene.registry import scene_from_config
+
+    def hashes(spec: dict) -> list[str]:
+        s = load_spec(spec)
+        return [scene_from_config(s.generator_config(j.generator), j.seed).content_hash() for j in s.scene_jobs()]
+
+    ds = open_dataset(tiny[0])
+    assert hashes(TINY) == ds.scene_hashes, "the spec's scenes are the dataset's scenes"
+    other = hashes({**TINY, "name": "other"})
+    assert not set(other) & set(ds.scene_hashes), "a spec with another name shares a scene"
+    assert hashes({**TINY, "name": "other", "scene_namespace": "tiny"}) == ds.scene_hashes
+    assert load_spec({**TINY, "scene_namespace": "tiny"}).config_hash() == load_spec(TINY).config_hash()
 
 
 def test_grids_are_the_exact_scene_sdf(tiny):
@@ -104,8 +174,32 @@ def test_same_spec_and_seed_give_the_same_id(tiny, tmp_path):
     """Regenerated elsewhere with two worker processes: byte-identical files, the same id."""
     again = generate(TINY, root=tmp_path, workers=2, progress=False)
     assert again.name == tiny[0].name
+    assert len(list(tiny[0].glob("*.mcap"))) == 3
     for f in sorted(tiny[0].glob("*.mcap")):
         assert (again / f.name).read_bytes() == f.read_bytes()
+
+
+def test_a_legacy_dataset_with_heldout_scenes_still_opens(tiny, tmp_path):
+    """A dataset written before issue 17 (its second scene labelled "heldout", no evaluation problems)
+    opens with "heldout" read as "val" and `legacy_splits` set; relabelled alone, it is legacy too."""
+    ds = open_dataset(tiny[0])
+    ds.scene_split[1] = "heldout"
+    relabelled = open_dataset(write_dataset(ds, name="relabelled", root=tmp_path))
+    assert read_scene_file(relabelled.path / "scene_0001.mcap", resolutions=[]).split == "heldout"
+    assert relabelled.scene_split == ["train", "val", "test"] and relabelled.legacy_splits is True
+    assert relabelled.scene_indices("heldout") == relabelled.scene_indices("val") == [1]
+    assert relabelled.has_eval_problems and len(relabelled.eval_problems) == 6
+    ds.eval_problems, ds.has_eval_problems = [], False
+    legacy = open_dataset(write_dataset(ds, name="legacy", root=tmp_path))
+    assert legacy.legacy_splits is True and legacy.has_eval_problems is False and legacy.eval_problems == []
+    assert legacy.scene_split == ["train", "val", "test"] and list(legacy.traj_split) == list(ds.traj_split)
+    assert legacy.scene_hashes == ds.scene_hashes
+    assert not any(k.startswith("eval_") for s in legacy.manifest["scenes"] for k in s)
+    with open(legacy.path / "scene_0000.mcap", "rb") as f:
+        from mcap.reader import make_reader
+
+        topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
+    assert not {"/eval/episode", "/eval/trajectory"} & topics
 
 
 def test_write_read_write_is_identical(tiny, tmp_path):
@@ -139,7 +233,8 @@ def test_plain_mcap_reader_and_foxglove_schemas(tiny):
         summary = reader.get_summary()
         schemas = {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
         assert schemas == {"/scene": "foxglove.SceneUpdate", "/scene/spec": "samp.SceneSpec", "/episode": "samp.Episode",
-                           "/trajectory": "foxglove.JointStates", "/sdf/n12": "foxglove.VoxelGrid",
+                           "/trajectory": "foxglove.JointStates", "/eval/episode": "samp.Episode",
+                           "/eval/trajectory": "foxglove.JointStates", "/sdf/n12": "foxglove.VoxelGrid",
                            "/sdf/n16": "foxglove.VoxelGrid"}
         assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
         meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
@@ -150,6 +245,12 @@ def test_plain_mcap_reader_and_foxglove_schemas(tiny):
         assert (grid.row_count, grid.column_count, len(grid.data)) == (12, 12, 4 * 12**3)
         episode = json.loads(next(reader.iter_messages(topics=["/episode"]))[2].data)
         assert {"episode", "success", "reason", "start", "goal", "stats"} <= set(episode)
+        assert episode["purpose"] == "demonstration"
+        evaluation = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/eval/episode"])]
+        assert len(evaluation) == 2 and {e["purpose"] for e in evaluation} == {"evaluation"}
+        solution = next(reader.iter_decoded_messages(topics=["/eval/trajectory"]))
+        assert [j.name for j in solution.decoded_message.joints] == [f"panda_joint{i}" for i in range(1, 8)]
+        assert solution.message.log_time >= 3 * 1_000_000, "evaluation problems play after the 3 demonstrations"
 
 
 def test_unknown_reference_lists_the_available_ones(tiny):
@@ -175,8 +276,8 @@ def test_truncated_file_and_unknown_format_are_clear_errors(tiny, tmp_path):
 
 
 def test_spec_without_a_valid_start_is_a_clear_error(tmp_path):
-    spec = {**TINY, "name": "cramped", "train_scenes": 1, "heldout_scenes": 0, "generators": ["tabletop"],
-            "expert_overrides": {"clearance": 0.6, "problems": {"start_rounds": 2, "start_batch": 64}}}
+    spec = {**TINY, "name": "cramped", "train_scenes": 1, "val_scenes": 0, "test_scenes": 0,
+            "generators": ["tabletop"], "expert_overrides": {"clearance": 0.6, "problems": {"start_rounds": 2, "start_batch": 64}}}
     with pytest.raises(GenerationError, match=r"scene 0 .*cannot host valid planning problems.*collision-free"):
         generate(spec, root=tmp_path, progress=False)
 
@@ -188,6 +289,10 @@ def test_spec_without_a_valid_start_is_a_clear_error(tmp_path):
     ({"resolutions": [1]}, "resolutions must list"),
     ({"colour": "red"}, r"invalid dataset spec: .*valid keys: name, robot"),
     ({"expert_overrides": {"planner_typo": 1}}, "invalid expert config"),
+    ({"heldout_scenes": 1}, r"'heldout_scenes' is retired: use val_scenes and test_scenes"),
+    ({"val_scenes": -1}, r"train_scenes, val_scenes and test_scenes must be >= 0 .* got \(1, -1, 1\)"),
+    ({"eval_problems_per_scene": 0}, "eval_problems_per_scene must be >= 0, and >= 1 when the spec has test scenes"),
+    ({"scene_namespace": ""}, "scene_namespace must be a non-empty string or null"),
 ])
 def test_bad_specs_say_what_is_wrong(bad, message):
     with pytest.raises(ValueError, match=message):

@@ -1,12 +1,14 @@
-"""Shared evaluation fixtures: a tiny dataset (one training and one held-out scene), built once."""
+"""Shared evaluation fixtures: a tiny dataset (one training, one validation and one test scene, three
+evaluation problems each), built once."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-TINY_EVAL = {"name": "tiny_eval", "robot": "panda", "seed": 7, "train_scenes": 1, "heldout_scenes": 1,
-             "trajectories_per_scene": 3, "generators": ["tabletop", "shelf"], "resolutions": [12, 16]}
+TINY_EVAL = {"name": "tiny_eval", "robot": "panda", "seed": 11, "train_scenes": 1, "val_scenes": 1, "test_scenes": 1,
+             "trajectories_per_scene": 1, "eval_problems_per_scene": 3, "generators": ["tabletop", "shelf"],
+             "resolutions": [12, 16]}
 
 
 @pytest.fixture(scope="session")
@@ -18,7 +20,7 @@ def panda(_isolated_cache):
 
 @pytest.fixture(scope="session")
 def tiny_eval(tmp_path_factory, _isolated_cache):
-    """(dataset folder, datasets root) of TINY_EVAL (about 10 s of planning)."""
+    """(dataset folder, datasets root) of TINY_EVAL (about 15 s of planning)."""
     from samp.data import generate
 
     root = tmp_path_factory.mktemp("eval_datasets")
@@ -27,9 +29,9 @@ def tiny_eval(tmp_path_factory, _isolated_cache):
 
 @pytest.fixture(scope="session")
 def tiny_problems(tiny_eval):
-    """Every problem of the tiny dataset, training scene first."""
+    """Every evaluation problem of the tiny dataset, by split: train, val, test."""
     from samp.data import open_dataset
     from samp.eval import problems_from_dataset
 
     ds = open_dataset(tiny_eval[0])
-    return ds, problems_from_dataset(ds, "train") + problems_from_dataset(ds, "heldout")
+    return ds, [p for split in ("train", "val", "test") for p in problems_from_dataset(ds, split)]

@@ -60,12 +60,14 @@ def test_the_callback_logs_eval_metrics_and_keeps_the_best_checkpoint(tiny_probl
     _, problems = tiny_problems
     expected = evaluate(StraightLinePolicy(panda), problems)["metrics"]
     assert 0 < expected["all"]["success_rate"] < 1, "the test needs a success rate between the extremes"
-    callback = EvalCallback(problems=problems, every_k_epochs=1)
+    # split: the problems are given; EvalCallback's own default ("heldout") predates the three splits.
+    callback = EvalCallback(problems=problems, every_k_epochs=1, split="val")
     trainer = _trainer(tmp_path, callback, epochs=3)
     trainer.fit(TinySystem(panda))
     scores = [h["eval/success_rate"] for h in callback.history]
     assert scores == [0.0, expected["all"]["success_rate"], 0.0], scores
-    assert callback.history[1]["eval/heldout/success_rate"] == expected["heldout"]["success_rate"]
+    for split in ("train", "val", "test"):
+        assert callback.history[1][f"eval/{split}/success_rate"] == expected[split]["success_rate"], split
     assert callback.history[1]["eval/collision_rate"] == expected["all"]["collision_rate"]
     assert "eval/success_rate" in trainer.callback_metrics, "metrics go through pl_module.log"
     best = torch.load(tmp_path / "checkpoints" / "best.ckpt", weights_only=False)
@@ -75,7 +77,7 @@ def test_the_callback_logs_eval_metrics_and_keeps_the_best_checkpoint(tiny_probl
 
 
 def test_the_callback_runs_every_k_epochs_only(tiny_problems, panda, tmp_path):
-    callback = EvalCallback(problems=tiny_problems[1][:2], every_k_epochs=2, save_best=False)
+    callback = EvalCallback(problems=tiny_problems[1][:2], every_k_epochs=2, save_best=False, split="val")
     _trainer(tmp_path, callback, epochs=3).fit(TinySystem(panda))
     assert [h["epoch"] for h in callback.history] == [1]
     assert not (tmp_path / "checkpoints").exists()
@@ -83,11 +85,11 @@ def test_the_callback_runs_every_k_epochs_only(tiny_problems, panda, tmp_path):
 
 def test_a_module_without_a_planner_or_a_dataset_is_refused(tiny_problems, tmp_path):
     with pytest.raises(ValueError, match="give dataset=REF"):
-        EvalCallback(problems=8)
+        EvalCallback(problems=8, split="val")
 
     class NoPolicy(TinySystem):
         planner = None
 
-    callback = EvalCallback(problems=tiny_problems[1][:1])
+    callback = EvalCallback(problems=tiny_problems[1][:1], split="val")
     with pytest.raises(TypeError, match=r"NoPolicy.planner\(\)"):
         _trainer(tmp_path, callback, epochs=1).fit(NoPolicy(None))

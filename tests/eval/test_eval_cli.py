@@ -116,8 +116,8 @@ def test_a_checkpoint_for_another_robot_is_refused(tiny_eval, tmp_path, capsys, 
 def no_heldout(tmp_path_factory, _isolated_cache):
     from samp.data import generate
 
-    spec = {"name": "no_heldout", "robot": "panda", "seed": 3, "train_scenes": 1, "heldout_scenes": 0,
-            "trajectories_per_scene": 2, "generators": ["tabletop"], "resolutions": [12]}
+    spec = {"name": "no_heldout", "robot": "panda", "seed": 3, "train_scenes": 1, "val_scenes": 0,
+            "trajectories_per_scene": 2, "eval_problems_per_scene": 2, "generators": ["tabletop"], "resolutions": [12]}
     return generate(spec, root=tmp_path_factory.mktemp("no_heldout"), progress=False)
 
 

@@ -14,9 +14,9 @@ from samp.eval.config import RolloutConfig
 
 def test_the_experts_own_trajectories_succeed_without_collision(tiny_problems):
     ds, problems = tiny_problems
-    assert {p.split for p in problems} == {"train", "heldout"}
+    assert {p.split for p in problems} == {"train", "val", "test"}
     result = evaluate(load_planner("expert"), problems)
-    for split in ("train", "heldout", "all"):
+    for split in ("train", "val", "test", "all"):
         m = result["metrics"][split]
         assert m["success_rate"] == 1.0 and m["reach_rate"] == 1.0, f"{split}: {m}"
         assert m["collision_rate"] == 0.0 and m["self_collision_rate"] == 0.0 and m["joint_limit_rate"] == 0.0, m
@@ -32,12 +32,62 @@ def test_problems_are_fixed_by_the_seed_and_spread_over_scenes(tiny_problems):
     b = problems_from_dataset(ds, "train", 2, seed=3)
     assert [p.name for p in a] == [p.name for p in b]
     assert len(a) == 2 and all(p.split == "train" and p.robot == "panda" for p in a)
-    assert len(problems_from_dataset(ds, "heldout", 50)) == 3, "a count above what the split has takes all of it"
+    assert len(problems_from_dataset(ds, "val", 50)) == 3, "a count above what the split has takes all of it"
+    heldout = problems_from_dataset(ds, "heldout", 2, seed=1)  # the name before issue 17 reads as "val"
+    assert [(p.name, p.split) for p in heldout] == [(p.name, "val") for p in problems_from_dataset(ds, "val", 2, seed=1)]
     for p in everything:  # each problem is its expert trajectory's start and goal, with the manifest's time
         np.testing.assert_array_equal(p.q_start, p.expert_trajectory[0])
         np.testing.assert_array_equal(p.q_goal, p.expert_trajectory[-1])
-        episode = int(p.name.rsplit("episode", 1)[1])
-        assert p.expert_time == ds.manifest["scenes"][p.scene_index]["planning_time"][episode]
+        index = int(p.name.rsplit("problem", 1)[1])
+        assert p.expert_time == ds.manifest["scenes"][p.scene_index]["eval_planning_time"][index]
+        assert p.scene_hash == ds.scene_hashes[p.scene_index] == p.scene.content_hash()
+        assert p.expert_reason is None
+
+
+def test_problems_are_the_stored_evaluation_problems_not_the_training_data(tiny_problems):
+    """Every problem is one of the dataset's stored evaluation problems, with the expert's stored solution;
+    compared by value, none is a demonstration the policy trains on."""
+    ds, problems = tiny_problems
+    assert len(problems) == len(ds.eval_problems) == 9
+    stored = {(p["scene"], p["index"]): p for p in ds.eval_problems}
+    demos = ds.trajectories.numpy()  # (N, 50, 7)
+    for p in problems:
+        record = stored[(p.scene_index, int(p.name.rsplit("problem", 1)[1]))]
+        assert p.split == record["split"] == ds.scene_split[p.scene_index]
+        np.testing.assert_array_equal(p.q_start, record["start"])
+        np.testing.assert_array_equal(p.q_goal, record["goal"])
+        np.testing.assert_array_equal(p.expert_trajectory, record["solution"])
+        assert not ((demos[:, 0] == p.q_start).all(axis=1) & (demos[:, -1] == p.q_goal).all(axis=1)).any(), p.name
+    assert not any(p.expert_trajectory is None for p in problems)
+    assert ds.scene_indices("test") == [2] and {p.split for p in problems if p.scene_index == 2} == {"test"}
+
+
+def test_a_failed_expert_plan_keeps_its_reason(tiny_problems):
+    """A stored problem the expert failed comes back without a trajectory and with its reason, and the
+    expert replayed on it fails with that reason."""
+    import copy
+
+    ds, _ = tiny_problems
+    ds = copy.copy(ds)
+    ds.eval_problems = [dict(p) for p in ds.eval_problems]
+    reason = "planner timeout: RRTConnect found no exact solution in 5.0 s (OMPL: Timeout)"
+    ds.eval_problems[0].update(success=False, solution=None, reason=reason)
+    (p,) = [p for p in problems_from_dataset(ds, "train") if p.name.endswith("/problem0")]
+    assert p.expert_trajectory is None and p.expert_reason == reason and p.expert_time is not None
+    record = evaluate(load_planner("expert"), [p])["records"][0]
+    assert record["termination"] == f"failed: {reason}" and not any(record["success"].values()), record["termination"]
+
+
+def test_a_dataset_without_stored_evaluation_problems_is_refused(tiny_problems):
+    import copy
+
+    ds = copy.copy(tiny_problems[0])
+    ds.has_eval_problems, ds.eval_problems = False, []
+    with pytest.raises(ValueError, match=r"predates stored evaluation problems .*regenerate it with "
+                                         r"`python -m samp.data generate dataset=tiny_eval`"):
+        problems_from_dataset(ds, "val")
+    with pytest.raises(ValueError, match=r"split must be one of \('train', 'val', 'test'\)"):
+        problems_from_dataset(tiny_problems[0], "heldin")
 
 
 def test_batched_and_one_at_a_time_rollouts_agree(tiny_problems, panda):
@@ -162,7 +212,7 @@ def test_the_engine_hands_each_problem_its_scene_grid(tiny_problems, panda):
     results = rollout(probe, problems, RolloutConfig(), dataset_grids(ds))
     assert probe.resets == 1 and len(probe.seen) == 1 and all(r.termination == "reached" for r in results)
     grids, index, per_problem, bounds = probe.seen[0]
-    assert grids.shape == (2, 12, 12, 12), "one grid per distinct scene"
+    assert grids.shape == (3, 12, 12, 12), "one grid per distinct scene"
     for i, p in enumerate(problems):
         torch.testing.assert_close(per_problem[i], ds.grid(p.scene_index, 12).to(panda.dtype))
         torch.testing.assert_close(bounds[i], torch.tensor(p.scene.bounds, dtype=panda.dtype))

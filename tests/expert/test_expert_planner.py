@@ -139,7 +139,71 @@ def test_goal_in_collision_is_a_failure_with_reason(panda):
         outside = planner.plan(start + np.array([10.0, 0, 0, 0, 0, 0, 0]), start, seed=0)
     assert not result.success and result.trajectory is None
     assert result.reason.startswith("goal in collision: penetrates an obstacle"), result.reason
-    assert outside.reason == "start outside the joint limits at ['panda_joint1']", outside.reason
+    beyond = start[0] + 10.0 - panda.joint_limits[0, 1].item()
+    assert outside.reason == (f"start outside the joint limits at ['panda_joint1']: {beyond:.3g} rad beyond (only 1e-06 "
+                              "rad of rounding is moved onto a limit)"), outside.reason
+
+
+def _free_at_a_limit(planner, robot, rng) -> tuple[np.ndarray, int, int]:
+    """A configuration clear of obstacles with one joint exactly on a limit: (q, joint, 0 lower | 1 upper)."""
+    lim = robot.joint_limits.numpy()
+    for q in random_free_configs(robot, planner.world, 40, rng, planner.cfg.clearance):
+        for j in range(robot.dof):
+            for side in (0, 1):
+                at = q.copy()
+                at[j] = lim[j, side]
+                if planner.valid(at[None])[0]:
+                    return at, j, side
+    pytest.fail("no free configuration with a joint on a limit among 40 random ones")
+
+
+def test_a_rounding_error_beyond_a_limit_is_moved_onto_it(panda, scene):
+    """A start 5e-9 rad beyond a joint limit (a float32 limit rounded outward) is planned from the limit
+    itself; OMPL, which tolerates nothing, used to refuse it as "invalid bounds". 1e-4 rad is refused."""
+    with ExpertPlanner(panda, scene) as planner:
+        rng = np.random.default_rng(3)
+        at, j, side = _free_at_a_limit(planner, panda, rng)
+        goal = random_free_configs(panda, planner.world, 1, rng, planner.cfg.clearance)[0]
+        step = 5e-9 * (1 if side else -1)  # outward
+        start = at.copy()
+        start[j] += step
+        result = planner.plan(start, goal, seed=0)
+        start[j] += 1e-4 * (1 if side else -1)
+        refused = planner.plan(start, goal, seed=0)
+    assert result.success, result.reason
+    np.testing.assert_array_equal(result.trajectory[0], at)  # exactly on the limit
+    np.testing.assert_array_equal(result.q_start, at)
+    assert result.stats["endpoint_clip"] == pytest.approx(5e-9, rel=1e-3)
+    assert not refused.success and refused.stats["attempts"] == 0
+    assert refused.reason.startswith(f"start outside the joint limits at ['{panda.joint_names[j]}']: 0.0001 rad beyond"), \
+        refused.reason
+
+
+def test_the_expert_plans_every_problem_its_sampler_makes(robots):
+    """Problems sampled with a float32 robot (as a policy's robot is), planned as the evaluation plans them
+    (mode "plan": a float64 copy from `exact_robot`), in one scene of each generator chosen to have starts
+    and goals on joint limits: every start and goal is within the exact limits, and every problem is
+    solved (none refused as "invalid bounds")."""
+    from samp.expert import sample_problems
+    from samp.robot import load_robot
+    from samp.robot.precision import exact_robot
+
+    robot32 = load_robot("panda")
+    robot, cfg = exact_robot(robot32), load_expert_config()
+    lim = robot.joint_limits.numpy()
+    on_a_limit, results = 0, []
+    for generator, seed in (("tabletop", 1), ("shelf", 0), ("cabinet", 0), ("blocks", 0)):
+        scene = generate_scene(generator, seed=seed)
+        with ExpertPlanner(robot, scene, cfg) as planner:
+            for i, p in enumerate(sample_problems(robot32, scene, 4, seed=0, cfg=cfg, world=planner.world)):
+                assert p.q_goal is not None, p.reason
+                q = np.stack([p.q_start, p.q_goal])
+                assert ((q >= lim[:, 0]) & (q <= lim[:, 1])).all(), f"{generator}: problem {i} leaves the limits"
+                on_a_limit += int((np.minimum(q - lim[:, 0], lim[:, 1] - q) < 1e-6).any())
+                results.append((generator, i, planner.plan(p.q_start, p.q_goal, seed=i)))
+    assert on_a_limit >= 4, "the scenes should give starts or goals on a joint limit (the case OMPL refused)"
+    failed = [(g, i, r.reason) for g, i, r in results if not r.success]
+    assert not failed, failed
 
 
 def test_timeout_is_a_failure_with_reason(panda, scene, blocked):

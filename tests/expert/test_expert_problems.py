@@ -89,3 +89,21 @@ def test_shelf_targets_are_approached_from_the_front():
     for seed in range(4):
         offsets = target_approaches(generate_scene("shelf", seed=seed), cfg)
         assert len(offsets) > 0 and np.allclose(offsets[:, 2], 0.0), f"seed {seed}: {offsets}"
+
+
+def test_ik_limits_are_rounded_inward(robots):
+    """A float32 robot's IK clamps to its limits rounded inward, so a configuration clamped onto a limit is,
+    in float64, within the exact limit (by less than one float32 step); a float64 robot's are exact."""
+    from samp.expert.ik import limits_inward
+    from samp.robot import load_robot
+
+    exact = robots["panda"].joint_limits
+    lo, hi = limits_inward(robots["panda"])
+    assert torch.equal(lo, exact[:, 0]) and torch.equal(hi, exact[:, 1])
+    lo, hi = limits_inward(load_robot("panda"))  # float32
+    assert lo.dtype == hi.dtype == torch.float32
+    assert (lo.double() >= exact[:, 0]).all() and (hi.double() <= exact[:, 1]).all()
+    ulp = torch.finfo(torch.float32).eps * exact.abs().amax(dim=1)  # (n,) one float32 step near the limits
+    assert ((lo.double() - exact[:, 0]) <= ulp).all() and ((exact[:, 1] - hi.double()) <= ulp).all()
+    rounded = exact.float().double()  # rounded to nearest: some limit moves outward (the old refusals)
+    assert ((rounded[:, 0] < exact[:, 0]) | (rounded[:, 1] > exact[:, 1])).any(), "the test needs an outward rounding"

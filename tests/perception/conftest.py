@@ -40,8 +40,9 @@ def ring_cameras(name: str = "ring", count: int = 4, top: bool = True, size=(96,
             "common": {"width": size[0], "height": size[1], "fov": 60.0, **noise}}
 
 
-TINY_PERCEPTION = {"name": "tiny_perception", "robot": "panda", "seed": 11, "train_scenes": 1, "heldout_scenes": 1,
-                   "trajectories_per_scene": 2, "generators": ["tabletop"], "resolutions": [12]}
+TINY_PERCEPTION = {"name": "tiny_perception", "robot": "panda", "seed": 11, "train_scenes": 1, "val_scenes": 1,
+                   "trajectories_per_scene": 2, "eval_problems_per_scene": 2, "generators": ["tabletop"],
+                   "resolutions": [12]}
 
 
 @pytest.fixture(scope="session")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-TINY = {"name": "bl_tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "heldout_scenes": 1,
-        "trajectories_per_scene": 3, "generators": ["tabletop"], "resolutions": [16]}
+TINY = {"name": "bl_tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "val_scenes": 1,
+        "trajectories_per_scene": 3, "eval_problems_per_scene": 3, "generators": ["tabletop"], "resolutions": [16]}
 
 
 @pytest.fixture(scope="session")

@@ -17,7 +17,7 @@ from .common import HEADER, timeit
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--workers", type=int, default=2, help="data: worker processes for expert generation")
-    ap.add_argument("--scenes", type=int, default=4, help="data: scenes generated (one held out)")
+    ap.add_argument("--scenes", type=int, default=4, help="data: scenes generated (one of them val)")
     ap.add_argument("--trajectories", type=int, default=25, help="data: problems per scene")
 
 
@@ -77,9 +77,9 @@ def run(args) -> tuple[dict, list[list]]:
     """Expert generation on `--workers` processes, and decoding the dataset against the same arrays in .npz."""
     from samp.data import generate, open_dataset, read_manifest
 
-    spec = {"name": "bench", "robot": args.robot, "seed": 0, "train_scenes": args.scenes - 1, "heldout_scenes": 1,
-            "trajectories_per_scene": args.trajectories, "generators": ["tabletop", "shelf", "cabinet", "blocks"],
-            "resolutions": [40, 100]}
+    spec = {"name": "bench", "robot": args.robot, "seed": 0, "train_scenes": args.scenes - 1, "val_scenes": 1,
+            "trajectories_per_scene": args.trajectories, "eval_problems_per_scene": 0,  # demonstrations only
+            "generators": ["tabletop", "shelf", "cabinet", "blocks"], "resolutions": [40, 100]}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         t0 = time.perf_counter()

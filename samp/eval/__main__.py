@@ -33,6 +33,7 @@ def _config(overrides: list[str]):
     # `dataset=REF` names a config group to Hydra (conf/dataset/ holds dataset specs), so keys that are
     # also group names are set after composition instead of being passed to Hydra.
     valid = list(EvalConfig.__dataclass_fields__)
+    overrides = [_old_split(o) for o in overrides]
     for o in overrides:  # a typo is named with the valid keys (Hydra would suggest `+key=`, then refused)
         key = o.partition("=")[0].lstrip("+~").split(".")[0]
         if key not in valid and key != "hydra":
@@ -48,6 +49,19 @@ def _config(overrides: list[str]):
         key, _, value = o.partition("=")
         raw[key] = None if value in ("", "null") else value
     return load_eval_config(raw)
+
+
+OLD_SPLITS = {"heldout": "[val]", "val": "[val]", "train": "[train]", "test": "[test]", "both": "[val,train]"}
+
+
+def _old_split(override: str) -> str:
+    """`split=heldout|train|both` (before evaluation sections) as the `splits=[...]` it means now."""
+    key, _, value = override.partition("=")
+    if key != "split":
+        return override
+    if value not in OLD_SPLITS:
+        raise ValueError(f"split={value!r}: give the sections as splits=[val,train] (any of train, val, test)")
+    return f"splits={OLD_SPLITS[value]}"
 
 
 def _open_dataset(cfg, run):
@@ -120,11 +134,15 @@ def _evaluate(overrides: list[str]) -> Path:
     if run is not None:
         find_checkpoint(run.path)  # a missing checkpoint fails before any dataset work
     ds = _open_dataset(cfg, run)
-    bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
-    manifest = (ds or bench).manifest
+    if ds is None:  # the benchmark alone: its manifest names the robot
+        bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
+        if bench is None:
+            raise ValueError("nothing to evaluate: splits=[] and benchmark=null")
     if run is not None:
-        check_robot(run, manifest)
-    planner = _planner(cfg, run, manifest)
+        check_robot(run, (ds or bench).manifest)
+    planner = _planner(cfg, run, (ds or bench).manifest)  # a bad checkpoint fails before a benchmark is built
+    if ds is not None:
+        bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
     sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot if hasattr(planner, "robot")
                                  else None, trained=ds if run is not None else None)
     label = f"{ds.name}@{ds.id}" if ds is not None else f"{bench.name}@{bench.id}"

@@ -63,7 +63,10 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float | Non
     p, z2 = successes / n, z * z
     centre = (p + z2 / (2 * n)) / (1 + z2 / n)
     half = z * np.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
-    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
+    # exactly 0 at no successes and 1 at all (the formula leaves a rounding error of ~1e-17 there)
+    low = 0.0 if successes == 0 else float(max(0.0, centre - half))
+    high = 1.0 if successes == n else float(min(1.0, centre + half))
+    return low, high
 
 
 def _rate(values: list) -> tuple:

@@ -115,8 +115,8 @@ def problems_from_dataset(ds, split: str, count: int | None = None, seed: int = 
         counts = {s: ds.scene_split.count(s) for s in SPLITS}
         others = [s for s in SPLITS if s != split and counts[s]]
         raise ValueError(f"{label} has no {split} scenes (scenes per split: {counts}); evaluate "
-                         f"{' or '.join(f'split={s}' for s in others) or 'another dataset'}, or generate a dataset "
-                         f"with {split}_scenes > 0")
+                         f"{'splits=[' + ','.join(others) + ']' if others else 'another dataset'}, or generate a "
+                         f"dataset with {split}_scenes > 0")
     stored = {i: [p for p in ds.eval_problems if p["scene"] == i and p["goal"] is not None] for i in scenes}
     available = [len(stored[i]) for i in scenes]
     if sum(available) == 0:

@@ -24,6 +24,7 @@ def demo(tmp_path_factory, _isolated_cache):
     cmd = [sys.executable, "-m", "samp.train", "+experiment=quickstart", "datamodule.dataset=smoke",
            "datamodule.n_e=16", "datamodule.val_samples=50", "trainer.max_epochs=1",
            "+trainer.limit_train_batches=4", "trainer.enable_progress_bar=false", "evaluation.problems=2",
+           "evaluation.benchmark=smoke",
            "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
@@ -51,17 +52,26 @@ def test_run_json_is_complete(demo):
     (sdf_run,) = (tmp / "runs" / "robot_sdf_panda_quick").iterdir()  # built on demand, in its own run folder
     assert json.loads((sdf_run / "run.json").read_text())["status"] == "completed"
     for planner in ("samp", "expert", "straight"):
-        for split in ("train", "heldout"):
-            assert f"eval/{planner}/{split}/success_rate" in record["metrics"], (planner, split, sorted(record["metrics"]))
+        for group in ("val", "train", "benchmark"):
+            for key in ("success_rate", "success_rate_ci_low", "success_rate_ci_high", "collision_rate"):
+                assert f"eval/{planner}/{group}/{key}" in record["metrics"], (planner, group, sorted(record["metrics"]))
+    assert "eval/samp/benchmark/solution_time_b1_mean" in record["metrics"]
 
 
 def test_metrics_recording_and_plot_are_there(demo):
     _, run, stdout = demo
     report = json.loads((run / "eval" / "metrics.json").read_text())
+    assert report["protocol"] == 2 and report["benchmark"].startswith("bench_smoke@")
     for key in ("metrics", "expert", "straight"):
-        assert set(report[key]) >= {"train", "heldout"}, (key, sorted(report[key]))
-        assert report[key]["train"]["problems"] == 2
-    assert report["expert"]["train"]["success_rate"] == 1.0  # the expert's own trajectories
+        assert set(report[key]) >= {"val", "train", "benchmark", "val_hard", "benchmark_hard"}, (key, sorted(report[key]))
+        assert report[key]["train"]["problems"] == 2 and report[key]["benchmark"]["problems"] == 8
+        for group, m in report[key].items():  # every rate with its interval
+            if m["problems"]:
+                assert m["success_rate_ci_low"] <= m["success_rate"] <= m["success_rate_ci_high"], (key, group)
+    assert {f"benchmark_{g}" for g in ("tabletop", "shelf", "cabinet", "blocks")} <= set(report["metrics"])
+    m = report["metrics"]["benchmark"]
+    assert m["timed_problems"] == 8 and m["solution_time_b1_mean"] > 0 and m["step_time_b1_mean"] > 0
+    assert report["expert"]["train"]["success_rate"] == 1.0  # the expert's own stored solutions
     assert (run / "plots" / "summary.png").stat().st_size > 10_000
     recording = run / "eval" / "recording.rrd"
     rerun = Path(sys.executable).with_name("rerun")
@@ -70,7 +80,7 @@ def test_metrics_recording_and_plot_are_there(demo):
     check = subprocess.run([rerun, "rrd", "verify", str(recording)], capture_output=True, text=True, timeout=300)
     assert check.returncode == 0, check.stderr[-2000:]
     # The run ends by printing the table and where its files are.
-    assert "| samp | heldout |" in stdout and "| straight | heldout |" in stdout
+    assert "| samp | val |" in stdout and "| straight | benchmark |" in stdout and "| expert | benchmark_hard |" in stdout
     assert f"recording: {recording}" in stdout and f"plots: {run / 'plots' / 'summary.png'}" in stdout
 
 
@@ -86,7 +96,7 @@ def test_the_checkpoint_alone_replays_the_evaluated_rollout(demo):
 
     tmp, run, _ = demo
     record = next(r for r in map(json.loads, (run / "eval" / "problems.jsonl").read_text().splitlines())
-                  if r["planner"] == "samp" and r["steps"] >= 3)
+                  if r["planner"] == "samp" and r["steps"] >= 3 and r["group"] in ("val", "train"))
     policy = load_planner(run)
     ds = open_dataset("smoke", tmp / "datasets")
     scene = ds.scenes[record["scene_index"]]
@@ -98,6 +108,26 @@ def test_the_checkpoint_alone_replays_the_evaluated_rollout(demo):
     for t in range(3):
         got = policy.step(traj[t][None], goal, env)[0]
         torch.testing.assert_close(got, traj[t + 1], atol=1e-5, rtol=0, msg=f"step {t}: reloaded policy differs")
+
+
+def test_no_reported_problem_comes_from_what_the_run_trained_or_selected_on(demo):
+    """By content: no benchmark scene is a training or validation scene of the run's dataset, and no
+    evaluation problem is a training demonstration (its start and goal)."""
+    import numpy as np
+
+    from samp.data import open_dataset
+
+    tmp, run, _ = demo
+    ds, bench = open_dataset("smoke", tmp / "datasets"), open_dataset("bench_smoke", tmp / "datasets")
+    seen = {h for h, split in zip(ds.scene_hashes, ds.scene_split) if split in ("train", "val")}
+    assert seen and not seen & set(bench.scene_hashes)
+    assert [s.content_hash() for s in bench.scenes] == bench.scene_hashes, "the manifest's hashes are the scenes'"
+    demos = {(tuple(np.round(t[0].numpy(), 9)), tuple(np.round(t[-1].numpy(), 9))) for t in ds.trajectories}
+    records = [json.loads(x) for x in (run / "eval" / "problems.jsonl").read_text().splitlines()]
+    asked = {(tuple(np.round(r["q_start"], 9)), tuple(np.round(r["q_goal"], 9))) for r in records}
+    assert asked and not asked & demos, "an evaluation problem is a training demonstration"
+    bench_names = {s.name for s in bench.scenes}
+    assert {r["scene"] for r in records if r["group"] == "benchmark"} <= bench_names
 
 
 def test_an_unknown_experiment_lists_the_available_ones():

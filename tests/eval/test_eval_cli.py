@@ -52,33 +52,48 @@ def _error(capsys) -> str:
 def test_cli_evaluates_the_expert_and_writes_its_files(tiny_eval, tmp_path, capsys):
     folder, _ = tiny_eval
     out = tmp_path / "expert"
-    assert main(["planner=expert", f"dataset={folder}", f"out={out}", "record_rollouts=2"]) == 0
+    assert main(["planner=expert", f"dataset={folder}", f"out={out}", "record_rollouts=2", "benchmark=null"]) == 0
     printed = capsys.readouterr().out
-    assert "| expert | heldout | 3 |" in printed and "| expert | train | 3 |" in printed
+    assert "| expert | val | 3 |" in printed and "| expert | train | 3 |" in printed
+    assert "| straight | val | 3 |" in printed, "the straight line is a row of every table"
     for name in (METRICS_JSON, METRICS_MD, PROBLEMS_JSONL, RECORDING_RRD):
         assert (out / name).is_file(), f"{name} not written"
     report = json.loads((out / METRICS_JSON).read_text())
-    for split in ("train", "heldout"):
+    assert report["protocol"] == 2 and report["benchmark"] is None
+    for split in ("train", "val"):
         assert report["metrics"][split]["success_rate"] == 1.0 and report["metrics"][split]["collision_rate"] == 0.0
+        assert report["groups"][split]["problems"] == 3 and "stored evaluation problems" in report["groups"][split]["source"]
     assert report["expert"] is None, "the expert is not compared with itself"
     records = [json.loads(line) for line in (out / PROBLEMS_JSONL).read_text().splitlines()]
-    assert len(records) == 6 and all(len(r["trajectory"]) == 50 for r in records)
+    expert = [r for r in records if r["planner"] == "expert"]
+    assert len(expert) == 6 and all(len(r["trajectory"]) == 50 for r in expert)
+    assert {r["group"] for r in records} == {"train", "val"} and len(records) == 12
 
 
 def test_cli_evaluates_a_run_and_the_expert_beside_it(tiny_eval, tmp_path, capsys, fake_policy_package, panda):
     folder, _ = tiny_eval
     run = _run_folder(tmp_path, folder, asset_hash=panda.asset_hash)
-    assert main([f"run={run}", "split=heldout", "problems=2", "record=false"]) == 0, _error(capsys)
+    assert main([f"run={run}", "split=heldout", "problems=2", "record=false", "benchmark=null"]) == 0, _error(capsys)
     assert fake_policy_package == [(run / "checkpoints" / "last.ckpt", run)]
     report = json.loads((run / "eval" / METRICS_JSON).read_text())
-    assert report["planner"] == "straight" and report["problems"] == {"heldout": 2}
-    assert report["expert"]["heldout"]["success_rate"] == 1.0
-    assert report["metrics"]["heldout"]["reach_rate"] == 1.0, "the straight line reaches every goal"
+    assert report["planner"] == "straight" and report["groups"]["val"]["problems"] == 2 and "train" not in report["groups"]
+    assert report["expert"]["val"]["success_rate"] == 1.0
+    assert report["metrics"]["val"]["reach_rate"] == 1.0, "the straight line reaches every goal"
     records = [json.loads(line) for line in (run / "eval" / PROBLEMS_JSONL).read_text().splitlines()]
     assert sorted(r["planner"] for r in records) == ["expert", "expert", "straight", "straight"]
     assert not (run / "eval" / RECORDING_RRD).exists()
-    assert main([f"run={run}", "split=heldout", "problems=2", "record=false"]) == 2
+    assert main([f"run={run}", "splits=[val]", "problems=2", "record=false", "benchmark=null"]) == 2
     assert "overwrite=true" in _error(capsys), "an earlier evaluation is not replaced silently"
+
+
+def test_the_test_scenes_of_the_run_s_own_dataset_can_be_evaluated(tiny_eval, tmp_path, capsys, fake_policy_package,
+                                                                 panda):
+    """Test scenes of the training dataset are unseen by construction (no demonstrations), so they pass the
+    content-hash check; the benchmark can be skipped."""
+    run = _run_folder(tmp_path, tiny_eval[0], asset_hash=panda.asset_hash)
+    assert main([f"run={run}", "splits=[test]", "record=false", "benchmark=null"]) == 0, _error(capsys)
+    report = json.loads((run / "eval" / METRICS_JSON).read_text())
+    assert set(report["groups"]) == {"test", "test_hard"} and report["groups"]["test"]["problems"] == 3
 
 
 def test_a_run_folder_without_a_checkpoint_is_refused(tiny_eval, tmp_path, capsys):
@@ -121,12 +136,13 @@ def no_heldout(tmp_path_factory, _isolated_cache):
     return generate(spec, root=tmp_path_factory.mktemp("no_heldout"), progress=False)
 
 
-def test_a_dataset_without_held_out_scenes_is_refused(no_heldout, tmp_path, capsys):
-    for split in ("split=heldout", "split=both"):
-        assert main(["planner=straight", f"dataset={no_heldout}", split, f"out={tmp_path}"]) == 2
+def test_a_dataset_without_validation_scenes_is_refused(no_heldout, tmp_path, capsys):
+    for split in ("split=heldout", "split=both", "splits=[val]"):
+        assert main(["planner=straight", f"dataset={no_heldout}", split, f"out={tmp_path}", "benchmark=null"]) == 2
         err = _error(capsys)
-        assert "has no held-out scenes" in err and "split=train" in err, err
-    assert main(["planner=straight", f"dataset={no_heldout}", "split=train", f"out={tmp_path}", "record=false"]) == 0
+        assert "has no val scenes" in err and "splits=[train]" in err, err
+    assert main(["planner=straight", f"dataset={no_heldout}", "splits=[train]", f"out={tmp_path}", "record=false",
+                 "benchmark=null"]) == 0
 
 
 def test_unknown_keys_and_missing_choices_are_refused(tiny_eval, tmp_path, capsys):
@@ -147,5 +163,9 @@ def test_the_composed_config_is_re_merged_strictly():
 
     with pytest.raises(ValueError, match="Key 'bogus' not in 'EvalConfig'.*Valid keys: run, planner"):
         load_eval_config({"bogus": 1})
-    with pytest.raises(ValueError, match="split must be train | heldout | both"):
-        load_eval_config({"split": "validation"})
+    with pytest.raises(ValueError, match=r"splits must be a list of distinct train \| val \| test"):
+        load_eval_config({"splits": ["validation"]})
+    with pytest.raises(ValueError, match="unknown benchmark 'nowhere'.*benchmarks: .*unseen"):
+        from samp.eval.benchmark import benchmark_spec
+
+        benchmark_spec("nowhere")

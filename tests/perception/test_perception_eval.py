@@ -52,7 +52,7 @@ def test_cli_reports_the_reconstruction_and_writes_its_recording(tiny_dataset, s
     out = tmp_path / "eval"
     argv = ["planner=straight", f"dataset={tiny_dataset}", "grid_source=reconstructed", f"camera={small_cameras_yaml}",
             "unknown=free", "n_e=12", "split=heldout", "problems=1", f"out={out}", "record_rollouts=1",
-            "compare_expert=false"]
+            "compare_expert=false", "benchmark=null"]
     assert main(argv) == 0, capsys.readouterr().err
     printed = capsys.readouterr().out
     assert "reconstruction (small, 4 cameras, unknown=free), 1 scenes: MAE near obstacles" in printed, printed
@@ -73,7 +73,7 @@ def test_cli_reports_the_reconstruction_and_writes_its_recording(tiny_dataset, s
 
 
 def test_cli_refuses_bad_perception_settings(tiny_dataset, tmp_path, capsys):
-    base = ["planner=straight", f"dataset={tiny_dataset}", f"out={tmp_path}", "n_e=12"]
+    base = ["planner=straight", f"dataset={tiny_dataset}", f"out={tmp_path}", "n_e=12", "benchmark=null"]
     assert main([*base, "grid_source=depth"]) == 2
     assert "grid_source must be exact | reconstructed" in capsys.readouterr().err
     assert main([*base, "grid_source=reconstructed", "unknown=maybe"]) == 2

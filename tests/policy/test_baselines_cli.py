@@ -16,7 +16,8 @@ import pytest
 
 COMMON = ["datamodule.n_e=16", "trainer.max_steps=50", "trainer.max_epochs=-1", "trainer.log_every_n_steps=2",
           "trainer.enable_progress_bar=false", "datamodule.batch_size=16", "datamodule.noise=0",
-          "datamodule.val_samples=32", "evaluation.problems=1", "system.optimizer.lr=1e-3"]
+          "datamodule.val_samples=32", "evaluation.problems=1", "evaluation.benchmark=null",
+          "system.optimizer.lr=1e-3"]
 SMALL = {"mpinet": ["model.robot_points=48", "model.obstacle_points=64", "model.target_points=16",
                     "model.levels=[{centres:32,radius:0.15,neighbours:8,widths:[16,32]}]", "model.global_widths=[32,64]",
                     "model.config_hidden=[16]", "model.decoder_hidden=[64]"],
@@ -47,9 +48,10 @@ def test_training_run_improves_its_loss_and_is_evaluated(kind, tiny, tmp_path):
     record = json.loads((run / "run.json").read_text())
     assert record["status"] == "completed" and record["dataset_id"].startswith("bl_tiny@")
     report = json.loads((run / "eval" / "metrics.json").read_text())
-    assert report["planner"] == kind and set(report["metrics"]) == {"train", "heldout", "all"}
-    assert report["expert"]["heldout"]["success_rate"] == 1.0 and "straight" in report
-    assert f"eval/{kind}/heldout/success_rate" in record["metrics"]
+    assert report["planner"] == kind and report["protocol"] == 2
+    assert set(report["metrics"]) == {"train", "val", "train_hard", "val_hard"}, sorted(report["metrics"])
+    assert report["expert"]["val"]["success_rate"] == 1.0 and report["straight"]["val"]["problems"] == 1
+    assert f"eval/{kind}/val/success_rate" in record["metrics"] and f"eval/{kind}/val/success_rate_ci_low" in record["metrics"]
     planner = load_planner(run)
     assert planner.name == kind
     assert isinstance(planner, StepPolicy if kind == "mpinet" else TrajectoryPlanner)
@@ -60,11 +62,11 @@ def test_eval_cli_plans_the_expert_rows_afresh(planner, tiny, tmp_path):
     from samp.eval.__main__ import main
 
     out = tmp_path / planner
-    assert main([f"planner={planner}", f"dataset={tiny[0]}", f"out={out}", "split=heldout", "problems=2",
-                 "record=false"]) == 0
+    assert main([f"planner={planner}", f"dataset={tiny[0]}", f"out={out}", "splits=[val]", "problems=2",
+                 "record=false", "benchmark=null"]) == 0
     report = json.loads((out / "metrics.json").read_text())
-    assert report["planner"] == planner and report["metrics"]["heldout"]["success_rate"] == 1.0
-    assert report["expert"]["heldout"]["success_rate"] == 1.0, "the stored expert is evaluated beside it"
+    assert report["planner"] == planner and report["metrics"]["val"]["success_rate"] == 1.0
+    assert report["expert"]["val"]["success_rate"] == 1.0, "the stored expert is evaluated beside it"
     records = [json.loads(line) for line in (out / "problems.jsonl").read_text().splitlines()]
     mine = [r for r in records if r["planner"] == planner]
     assert len(mine) == 2 and all(r["termination"] == "planned" and r["solution_time"] > 0 for r in mine)

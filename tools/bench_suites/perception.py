@@ -1,7 +1,7 @@
 """`perception` suite: depth-camera capture and anchor-grid reconstruction per scene at n_e in --anchors (four
 scenes, --camera set, --unknown policy), against the exact scene.anchor_grid as the baseline, with the
 reconstruction error near obstacles; with --run, the policy's success rate on exact vs reconstructed grids for
---problems held-out problems of --dataset.
+--problems validation-scene problems of --dataset.
 
 Adds --camera, --unknown, --run and --dataset; reads --anchors (added by the scene suite) and --problems (added
 by the eval suite)."""
@@ -67,24 +67,24 @@ def _reconstruction(robot, q: np.ndarray, scenes: list, captured: list, n: int,
 
 
 def _policy_success(args, cameras) -> tuple[dict, list[list]]:
-    """--run's policy on --problems held-out problems of --dataset, on exact and on reconstructed grids."""
+    """--run's policy on --problems validation-scene problems of --dataset, on exact and on reconstructed grids."""
     from samp.data import open_dataset
     from samp.eval import dataset_grids, evaluate, load_planner, problems_from_dataset
     from samp.eval.checks import exact_robot
     from samp.perception import ReconstructedGrids
 
     ds = open_dataset(args.dataset)
-    problems = problems_from_dataset(ds, "heldout", args.problems, seed=0)
+    problems = problems_from_dataset(ds, "val", args.problems, seed=0)
     policy = load_planner(args.run)
     exact_grids = dataset_grids(ds)
     source = ReconstructedGrids(cameras, exact_robot(policy.robot), exact=exact_grids, unknown=args.unknown)
-    on_exact = evaluate(policy, problems, grids=exact_grids)["metrics"]["heldout"]
-    on_recon = evaluate(policy, problems, grids=source)["metrics"]["heldout"]
+    on_exact = evaluate(policy, problems, grids=exact_grids)["metrics"]["val"]
+    on_recon = evaluate(policy, problems, grids=source)["metrics"]["val"]
     metrics = {"policy/measured": True, "policy/dataset": f"{ds.name}@{ds.id}", "policy/problems": len(problems),
                "policy/n_e": policy.n_e, "policy/mae_near_mm": source.report()["mean"]["mae_near_mm"],
                **{f"policy/{k}_{which}": m[k] for which, m in (("exact", on_exact), ("reconstructed", on_recon))
                   for k in ("success_rate", "collision_rate", "reach_rate")}}
-    rows = [[f"policy {k} ({len(problems)} held-out problems)", f"{on_recon[k]:.1%} reconstructed",
+    rows = [[f"policy {k} ({len(problems)} validation-scene problems)", f"{on_recon[k]:.1%} reconstructed",
              f"{on_exact[k]:.1%} exact", f"{on_recon[k] - on_exact[k]:+.1%}"]
             for k in ("success_rate", "collision_rate", "reach_rate")]
     return metrics, rows
@@ -93,7 +93,7 @@ def _policy_success(args, cameras) -> tuple[dict, list[list]]:
 def run(args) -> tuple[dict, list[list]]:
     """Reconstruction from simulated depth cameras: per-scene time at each n_e (baseline: the exact grid in the
     same run), its error near obstacles, and with --run a trained policy's success on exact vs reconstructed
-    grids for the held-out scenes of --dataset."""
+    grids for the validation scenes of --dataset."""
     from samp.robot import load_robot
     from samp.scene import generate_scene
     from samp.sim.camera import load_camera_set

@@ -1,6 +1,7 @@
 """What a training needs before its system and DataModule exist: a robot SDF given by experiment name is
-turned into the path of its run, and a missing dataset or robot SDF is built when the config asks
-(`build_missing.dataset`, `build_missing.robot_sdf`). Steps of the recipe, never of a LightningModule.
+turned into the path of its run, a missing dataset or robot SDF is built when the config asks
+(`build_missing.dataset`, `build_missing.robot_sdf`), and a dataset the evaluation after training could
+not use is refused before training. Steps of the recipe, never of a LightningModule.
 """
 
 from __future__ import annotations
@@ -54,25 +55,47 @@ def _robot_sdf(cfg) -> str:
 
 
 def _dataset(cfg) -> None:
-    """Generate the DataModule's dataset from its spec (conf/dataset/) when it is not built yet."""
-    from samp.data import DatasetError, available_specs, generate, open_dataset
+    """Generate the DataModule's dataset from its spec (conf/dataset/) when none is built yet, or when the
+    newest one of that name was generated from another version of the spec (its config hash differs)."""
+    from samp.data import DatasetError, available_specs, generate, load_spec, open_dataset
 
-    ref, root = str(cfg.datamodule.dataset), Path(cfg.paths.datasets_dir)
-    root = Path(cfg.datamodule.get("root") or root)
+    ref = str(cfg.datamodule.dataset)
+    root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
+    spec = load_spec(ref) if ref in available_specs() else None
     try:
-        open_dataset(ref, root)
-        return
+        found = open_dataset(ref, root)
     except DatasetError:
-        if ref not in available_specs():
+        if spec is None:
             raise
-    print(f"dataset {ref!r} is not built yet: generating it from conf/dataset/{ref}.yaml", flush=True)
+        print(f"dataset {ref!r} is not built yet: generating it from conf/dataset/{ref}.yaml", flush=True)
+    else:
+        if spec is None or found.manifest.get("config_hash") == spec.config_hash():
+            return
+        print(f"the newest {ref!r} dataset ({found.name}@{found.id}) was made from another version of "
+              f"conf/dataset/{ref}.yaml: generating the current one (the older one stays as it is)", flush=True)
     generate(ref, workers=int(cfg.build_missing.workers), root=root)
+
+
+def _check_evaluable(cfg) -> None:
+    """Fail before training, not after it, when the evaluation after training cannot run on the dataset."""
+    from samp.data import read_manifest, resolve_ref
+
+    root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
+    manifest = read_manifest(resolve_ref(str(cfg.datamodule.dataset), root))  # the manifest alone: no decoding
+    if not (manifest.get("counts") or {}).get("eval_problems"):
+        name = manifest.get("name")
+        raise ValueError(f"dataset {name}@{manifest.get('id')} stores no evaluation problems (it predates them), so "
+                         f"the run could not be evaluated after training: regenerate it (`python -m samp.data "
+                         f"generate dataset={name}`, or build_missing.dataset=true), or set evaluation.problems=0")
 
 
 def prepare(cfg) -> None:
     """Resolve and build what `cfg` (the composed training config, writable) needs; rewrites
     `cfg.system.robot_sdf` to a path. Call on rank 0 before instantiating the system."""
-    if cfg.build_missing.dataset and cfg.datamodule.get("dataset") is not None:
-        _dataset(cfg)
+    if cfg.datamodule.get("dataset") is not None:
+        if cfg.build_missing.dataset:
+            _dataset(cfg)
+        if cfg.evaluation.problems:
+            _check_evaluable(cfg)
     if cfg.system.get("robot_sdf"):
         cfg.system.robot_sdf = _robot_sdf(cfg)

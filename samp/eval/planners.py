@@ -72,8 +72,7 @@ class ExpertTrajectoryPlanner:
     def plan(self, problem) -> PlannedTrajectory:
         if self.mode == "replay":
             if problem.expert_trajectory is None and problem.expert_reason:  # the expert failed on it when stored
-                return PlannedTrajectory(None, problem.expert_time, f"expert failed when the dataset was made: "
-                                                                    f"{problem.expert_reason}")
+                return PlannedTrajectory(None, problem.expert_time, problem.expert_reason)
             if problem.expert_trajectory is None:
                 raise ValueError(f"problem {problem.name or '(unnamed)'} has no expert trajectory to replay; take "
                                  "problems from a dataset (samp.eval.problems_from_dataset) or use mode='plan'")

@@ -155,7 +155,7 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
             print("  " + section.reconstruction.summary())
     report = {"protocol": PROTOCOL, "planner": planner.name, "run": str(run_path) if run_path else None,
               "dataset": dataset, "benchmark": benchmark, "groups": groups, "metrics": blocks[planner.name],
-              "expert": blocks.get("expert"), "straight": blocks.get("straight")}
+              **{other: blocks.get(other) if planner.name != other else None for other in ("expert", "straight")}}
     return _write(out, cfg, report, planner, problems, records, results_all, sections)
 
 

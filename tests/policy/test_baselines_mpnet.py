@@ -74,6 +74,19 @@ def test_backward_steps_read_the_trajectory_in_reverse(dm):
         MPNetSystem(robot="panda", reverse_fraction=1.5)
 
 
+def test_densify_never_falls_short_of_the_waypoint_count():
+    """Rounding each segment's share on its own can lose a waypoint (three equal segments of 49 pieces
+    round to 16 + 16 + 16 = 48); the largest-remainder split gives at least count - 1 pieces."""
+    path = np.array([[0.0], [1.0], [2.0], [3.0]])
+    assert len(densify(path, 50)) == 50
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        path = np.cumsum(rng.normal(size=(int(rng.integers(2, 12)), 3)), axis=0)
+        count = int(rng.integers(2, 80))
+        got = len(densify(path, count))  # one more per segment at most, where a short one still gets its piece
+        assert max(count, len(path)) <= got <= max(count, len(path)) + len(path), (len(path), count, got)
+
+
 def test_densify_keeps_every_state_and_the_polyline():
     path = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 3.0]])
     out = densify(path, 9)

@@ -65,14 +65,20 @@ class MPNetPlanConfig:
 
 
 def densify(path: np.ndarray, count: int) -> np.ndarray:
-    """(m, n) polyline -> (W, n), W about max(count, m): every state of `path` kept, each segment cut into
-    pieces in proportion to its joint-space length (at least one), so the polyline itself is unchanged."""
+    """(m, n) polyline -> (W, n), W >= max(count, m): every state of `path` kept, each segment cut into
+    pieces in proportion to its joint-space length (at least one), so the polyline itself is unchanged.
+    The pieces are whole numbers summing to at least count - 1 (largest remainders round up), so rounding
+    never leaves the trajectory short of `count` waypoints."""
     path = np.asarray(path, dtype=np.float64)
     seg = np.linalg.norm(np.diff(path, axis=0), axis=1)  # (m - 1,)
     total = seg.sum()
     if len(seg) == 0 or total <= 0:
         return path
-    pieces = np.maximum(1, np.round(seg / total * (count - 1))).astype(int)
+    share = seg / total * max(count - 1, len(seg))  # (m - 1,) pieces per segment, fractional
+    pieces = np.maximum(1, np.floor(share)).astype(int)
+    short = max(count - 1, len(seg)) - int(pieces.sum())
+    if short > 0:
+        pieces[np.argsort(-(share - np.floor(share)), kind="stable")[:short]] += 1
     out = [path[:1]]
     for a, b, p in zip(path[:-1], path[1:], pieces):
         out.append(a + (np.arange(1, p + 1) / p)[:, None] * (b - a))

@@ -32,17 +32,23 @@ def benchmark_spec(name: str) -> str:
 
 
 def open_benchmark(name: str, root: str | Path | None = None, workers: int = 2):
-    """The benchmark's dataset, generated first (once) when it is not built yet."""
-    from samp.data import DatasetError, generate, open_dataset
+    """The benchmark's dataset as its spec defines it now, generated first (once) when it is not built yet
+    or when the newest one of its name was made from another version of the spec (its config hash)."""
+    from samp.data import DatasetError, generate, load_spec, open_dataset
 
     spec = benchmark_spec(name)
     root = Path(root) if root else None
     try:
-        return open_dataset(spec, root)
+        found = open_dataset(spec, root)
     except DatasetError:
         print(f"benchmark {name!r} is not built yet: generating {spec} from conf/dataset/{spec}.yaml once "
               f"(expert solutions for every problem, {workers} workers)", flush=True)
-        return open_dataset(generate(spec, workers=workers, root=root))
+    else:
+        if found.manifest.get("config_hash") == load_spec(spec).config_hash():
+            return found
+        print(f"benchmark {name!r}: the newest {spec} ({found.name}@{found.id}) was made from another version of "
+              f"conf/dataset/{spec}.yaml; generating the current one (the older one stays, by its id)", flush=True)
+    return open_dataset(generate(spec, workers=workers, root=root))
 
 
 def trained_scene_hashes(ds) -> set[str]:

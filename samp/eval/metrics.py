@@ -332,11 +332,11 @@ def summarize(records: list[dict], cfg: RolloutConfig) -> dict:
     return out
 
 
-TABLE_COLUMNS = ["planner", "split", "problems", *(m.column.header() for m in table_metrics())]
+TABLE_COLUMNS = ["planner", "group", "problems", *(m.column.header() for m in table_metrics())]
 
 
 def markdown_table(rows: list[tuple[str, str, dict]], cfg: RolloutConfig) -> str:
-    """(planner, split, metrics) rows -> a markdown table in the paper's Table I/II style; per-tolerance
+    """(planner, group, metrics) rows -> a markdown table in the paper's Table I/II style; per-tolerance
     metrics (success, reach) are given at every tolerance, the stopping tolerance first."""
     labels = [tolerance_label(t) for t in cfg.tolerances()]
     columns = [(m.column, label, m.keys(label)) for m in table_metrics()

@@ -299,7 +299,7 @@ def test_markdown_table_keeps_its_header_cells_and_note():
     # 6 / 1.4 s = 4.3 problems/s; rates with their Wilson intervals (2/6: [9.7, 70.0], 1/6: [3.0, 56.4],
     # 4/6: [30.0, 90.3])
     expected = (
-        "| planner | split | problems | soln. time B=1 [s] | path length [m] | success@2cm [%] | success@1cm [%] "
+        "| planner | group | problems | soln. time B=1 [s] | path length [m] | success@2cm [%] | success@1cm [%] "
         "| reach@2cm [%] | reach@1cm [%] | collision [%] | self-coll. [%] | joint limits [%] | step B=1 [ms] "
         "| batched [problems/s] |\n"
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
@@ -312,7 +312,7 @@ def test_markdown_table_keeps_its_header_cells_and_note():
         "Path length: mean ± std over successful problems. Solution and step time: one problem at a time (B = 1), "
         "over the problems timed so; batched: problems per second in the batched rollouts the outcomes come from.\n")
     assert table == expected, f"expected\n{expected}\ngot\n{table}"
-    assert TABLE_COLUMNS == ["planner", "split", "problems", "soln. time B=1 [s]", "path length [m]", "success [%]",
+    assert TABLE_COLUMNS == ["planner", "group", "problems", "soln. time B=1 [s]", "path length [m]", "success [%]",
                              "reach [%]", "collision [%]", "self-coll. [%]", "joint limits [%]", "step B=1 [ms]",
                              "batched [problems/s]"]
 

@@ -51,7 +51,8 @@ def test_collision_loss_gradient_pushes_points_out():
     assert pts.grad[0, 0, 0] > 0  # descending the gradient moves the point in -x, away from the box
 
 
-def _step(robot_sdf_calls: list) -> "StepPrediction":
+def _step(robot_sdf_calls: list):
+    """A StepPrediction with a linear environment SDF; `robot_sdf_calls` counts the robot SDF queries."""
     from samp.policy.losses import StepPrediction
 
     z = torch.linspace(0.0, 1.0, 5)

@@ -14,11 +14,7 @@ baseline is a network module here, a `<name>_system.py` module with its system c
 
 from __future__ import annotations
 
-from pathlib import Path
-
-__all__ = ["BASELINES", "MPNetSystem", "MPiNetSystem", "planner_from_checkpoint"]
-
-BASELINES = ("mpinet", "mpnet")
+__all__ = ["MPNetSystem", "MPiNetSystem"]
 
 
 def __getattr__(name: str):
@@ -31,10 +27,3 @@ def __getattr__(name: str):
 
         return MPNetSystem
     raise AttributeError(f"module 'samp.policy.baselines' has no attribute {name!r}")
-
-
-def planner_from_checkpoint(checkpoint: str | Path | dict, **options):
-    """A baseline checkpoint (path or loaded dict) -> its planner (`samp.policy.load_policy`)."""
-    from samp.policy.registry import load_policy
-
-    return load_policy(checkpoint, **options)

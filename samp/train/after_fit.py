@@ -45,9 +45,9 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     if not evaluation.problems and not evaluation.benchmark:
         return {}
     ds = datamodule.ds
-    cfg = load_eval_config({"problems": int(evaluation.problems or 1), "splits": ["val", "train"] if evaluation.problems
-                            else [], "benchmark": evaluation.benchmark, "overwrite": True,
-                            "root": str(Path(ds.path).parents[1])})
+    splits = ["val", "train"] if evaluation.problems else []  # 0 problems: the benchmark alone
+    cfg = load_eval_config({"problems": evaluation.problems or None, "splits": splits, "benchmark": evaluation.benchmark,
+                            "overwrite": True, "root": str(Path(ds.path).parents[1])})
     bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
     system.eval()
     planner = system.planner()

@@ -54,13 +54,17 @@ def _robot_sdf(cfg) -> str:
     return str(train(overrides).path)
 
 
+def _datasets_root(cfg) -> Path:
+    """Where the DataModule looks for its dataset: its own `root`, else `paths.datasets_dir`."""
+    return Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
+
+
 def _dataset(cfg) -> None:
     """Generate the DataModule's dataset from its spec (conf/dataset/) when none is built yet, or when the
     newest one of that name was generated from another version of the spec (its config hash differs)."""
     from samp.data import DatasetError, available_specs, generate, load_spec, open_dataset
 
-    ref = str(cfg.datamodule.dataset)
-    root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
+    ref, root = str(cfg.datamodule.dataset), _datasets_root(cfg)
     spec = load_spec(ref) if ref in available_specs() else None
     try:
         found = open_dataset(ref, root)
@@ -80,8 +84,7 @@ def _check_evaluable(cfg) -> None:
     """Fail before training, not after it, when the evaluation after training cannot run on the dataset."""
     from samp.data import read_manifest, resolve_ref
 
-    root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
-    manifest = read_manifest(resolve_ref(str(cfg.datamodule.dataset), root))  # the manifest alone: no decoding
+    manifest = read_manifest(resolve_ref(str(cfg.datamodule.dataset), _datasets_root(cfg)))  # the manifest alone: no decoding
     if not (manifest.get("counts") or {}).get("eval_problems"):
         name = manifest.get("name")
         raise ValueError(f"dataset {name}@{manifest.get('id')} stores no evaluation problems (it predates them), so "

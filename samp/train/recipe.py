@@ -30,17 +30,20 @@ def _repo_path(path: str) -> Path:
     return p if p.is_absolute() else REPO_ROOT / p
 
 
-def _resume_overrides(overrides: list[str]) -> list[str]:
-    """`resume=RUN_DIR [key=value ...]`: the run's recorded overrides, then the new ones (which win)."""
+def _resume_overrides(overrides: list[str], resume: str | Path | None = None) -> list[str]:
+    """`resume=RUN_DIR [key=value ...]` (or `resume` given as data): the run's recorded overrides, then the
+    new ones (which win)."""
     from samp.runs import RunFolder
     from samp.runs.lineage import merge_overrides, override_key
 
-    resume = [o for o in overrides if override_key(o) == "resume"]
-    if not resume:
-        return overrides
-    from hydra.core.override_parser.overrides_parser import OverridesParser
+    path = resume
+    if path is None:
+        given = [o for o in overrides if override_key(o) == "resume"]
+        if not given:
+            return overrides
+        from hydra.core.override_parser.overrides_parser import OverridesParser
 
-    path = OverridesParser.create().parse_override(resume[-1]).value()  # unquoted, as Hydra reads it
+        path = OverridesParser.create().parse_override(given[-1]).value()  # unquoted, as Hydra reads it
     if path in (None, ""):
         return overrides
     folder = RunFolder(_repo_path(str(path)))
@@ -77,8 +80,14 @@ def _open_folder(cfg):
     return folder, None
 
 
-def train(overrides: list[str], **info):
-    """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there)."""
+def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: str | Path | None = None,
+          paths: dict | None = None, **info):
+    """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there).
+
+    Folders a caller already holds are passed as data, never spliced into override strings (a folder
+    name may hold `=`, `,`, quotes or spaces, which Hydra's override grammar would read): `run_dir` (a
+    new run in that folder), `resume` (continue that run) and `paths` (`{"runs_dir": ..., "datasets_dir":
+    ...}`, set after composition) act as the overrides of the same names."""
     import time
 
     import pytorch_lightning as pl
@@ -90,9 +99,17 @@ def train(overrides: list[str], **info):
     from samp.train.after_fit import after_fit
     from samp.train.prerequisites import prepare
 
-    overrides = _resume_overrides(list(overrides))
+    overrides = _resume_overrides(list(overrides), resume)
     cfg = compose_train_config(overrides)
     with open_dict(cfg):
+        for key, value in (paths or {}).items():
+            if key not in cfg.paths:
+                raise ValueError(f"paths has no key {key!r}; keys: {', '.join(cfg.paths)}")
+            cfg.paths[key] = str(value)
+        if run_dir is not None:
+            cfg.run_dir = str(run_dir)
+        if resume is not None:
+            cfg.resume = str(resume)
         cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
         cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
         prepare(cfg)  # before this run's folder exists: a robot SDF built here is a run of its own

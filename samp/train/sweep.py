@@ -10,7 +10,7 @@ conf/train.yaml's defaults list.) `samp.train` composes with Hydra's compose API
 hands the arguments to `multirun` here, which runs Hydra's own `main` on conf/train.yaml so that sweepers
 and launchers (basic, joblib, submitit/SLURM) work as Hydra documents them. A sweep config (conf/sweep/NAME.yaml) sets
 `hydra.sweeper.params` and `hydra.sweep.dir` (runs/sweeps/NAME). Every member is exactly
-`samp.train.train(its overrides + run_dir=<member folder>)`, so it is checked, recorded and evaluated like
+`samp.train.train(its overrides, run_dir=<member folder>)` (the folder passed as data), so it is checked, recorded and evaluated like
 a single run. Its folder is `<sweep dir>/<override_dirname>`, built from the overrides that vary between
 members and the experiment, e.g. `runs/sweeps/anchor_size/experiment=samp_n40/`; the other overrides
 are recorded in the member's run.json. A member folder named before `experiment` joined the defaults list
@@ -212,10 +212,10 @@ def _member(cfg) -> dict | None:
     if state == "skip":
         print(f"{folder.name}: completed earlier, skipped", flush=True)
         return RunFolder(folder).read().get("metrics")
-    quoted = "'" + str(folder).replace("\\", "\\\\").replace("'", "\\'") + "'"  # member names hold = and ,
-    where = f"resume={quoted}" if state == "resume" else f"run_dir={quoted}"
+    # The folder goes to the recipe as data: member names hold `=` and `,`, which an override string would parse.
+    where = {"resume": folder} if state == "resume" else {"run_dir": folder}
     sweep = {"dir": str(Path(hc.sweep.dir).resolve()), "member": hc.job.override_dirname if folder == named
              else folder.name}
     with _outside_hydra():
-        run = train([*overrides, where], sweep=sweep)
+        run = train(overrides, sweep=sweep, **where)
     return run.read().get("metrics")

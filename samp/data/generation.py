@@ -178,11 +178,40 @@ def _write_json(path: Path, data: dict) -> None:
 
 
 # ------------------------------------------------------------------------------------------ shards
+def finished_dataset(spec: DatasetSpec, root: Path | None = None) -> Path | None:
+    """The newest finished dataset of `spec`'s name made from exactly this spec (same config hash), or None."""
+    from samp.data.registry import read_manifest
+
+    folder = Path(root or datasets_root()) / spec.name
+    found = []
+    for manifest in sorted(folder.glob("*/manifest.json")) if folder.is_dir() else []:
+        if manifest.parent.name.startswith("."):
+            continue
+        try:
+            m = read_manifest(manifest.parent, check_sizes=False)
+        except Exception:  # noqa: BLE001 - an unreadable dataset is not the one asked for; verify names it
+            continue
+        if m.get("config_hash") == spec.config_hash():
+            found.append((str(m.get("created", "")), manifest.parent))
+    return max(found)[1] if found else None
+
+
+def _already_there(spec: DatasetSpec, root: Path | None, work: Path) -> Path | None:
+    """A finished dataset of this spec when no generation of it is under way (its work folder is gone)."""
+    done = finished_dataset(spec, root)
+    if done is not None and not any(work.glob("*.mcap")):
+        print(f"{spec.name}: already generated from this spec as {spec.name}@{done.name} ({done}); nothing to plan "
+              "or merge", flush=True)
+        return done
+    return None
+
+
 def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shards: int = 1, workers: int = 1,
              root: Path | None = None, progress: bool = True) -> Path | None:
     """Generate the scenes of `shard` (None: all of them) with `workers` processes, resuming from any
     finished scene files. When every scene of the spec is done, merge into a dataset and return its
-    folder; otherwise (a shard of several) return None."""
+    folder; otherwise (a shard of several) return None. A spec generated before (a finished dataset of the
+    same config hash, no work under way) is found and returned, nothing planned."""
     from tqdm.auto import tqdm
 
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
@@ -191,6 +220,9 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     work = work_dir(spec, root)
+    done = _already_there(spec, root, work)
+    if done is not None:
+        return done
     work.mkdir(parents=True, exist_ok=True)
     _write_json(work / "spec.json", spec.resolved())
     for stale in work.glob("*.tmp"):  # left by a killed run
@@ -260,6 +292,9 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
     work = work_dir(spec, root)
     jobs = spec.scene_jobs()
     missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
+    done = _already_there(spec, root, work) if missing else None
+    if done is not None:  # merged already (generate merges when the last scene is done)
+        return done
     if missing:
         raise GenerationError(f"cannot merge {spec.name!r}: {len(missing)} of {len(jobs)} scenes are not generated "
                               f"yet (indices {missing[:20]}{' ...' if len(missing) > 20 else ''}) in {work}; run "

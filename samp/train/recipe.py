@@ -95,6 +95,7 @@ def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: st
     from omegaconf import OmegaConf, open_dict
 
     from samp.runs.distributed import is_rank_zero
+    from samp.runs.folder import Terminated
     from samp.runs.loggers import finish_loggers
     from samp.train.after_fit import after_fit
     from samp.train.prerequisites import prepare
@@ -126,29 +127,33 @@ def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: st
     # The CSV logger writes into the run folder, which already holds .hydra/ and run.json by design.
     warnings.filterwarnings("ignore", message="Experiment logs directory .* exists and is not empty")
     config = OmegaConf.to_container(cfg, resolve=True)
-    with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path),
-                       config=config, **info) if rank_zero else nullcontext(folder):
-        pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
-        datamodule = instantiate(cfg.datamodule)
-        system = instantiate(cfg.system)
-        callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
-        loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
-        trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
-        start = time.perf_counter()
-        trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None)
-        fit_s = time.perf_counter() - start + ((folder.read().get("fit_time_s") or 0.0) if ckpt else 0.0)
-        trainer.save_checkpoint(folder.last_checkpoint)
-        if not rank_zero:
-            return folder
-        metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-        folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step),
-                      epochs=int(trainer.current_epoch), fit_time_s=fit_s, metrics=metrics,
-                      robot_sdf_artifact_id=getattr(system, "robot_sdf_artifact_id", None))
-        evaluated = after_fit(cfg, system, datamodule, folder.path)
-        metrics.update(evaluated)
-        record = folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id")
-                               or folder.read().get("robot_sdf_artifact_id"))
-        finish_loggers(loggers, record, evaluated, step=int(trainer.global_step))
+    try:
+        with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path),
+                           config=config, **info) if rank_zero else nullcontext(folder):
+            pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
+            datamodule = instantiate(cfg.datamodule)
+            system = instantiate(cfg.system)
+            callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
+            loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
+            trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
+            start = time.perf_counter()
+            trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None)
+            fit_s = time.perf_counter() - start + ((folder.read().get("fit_time_s") or 0.0) if ckpt else 0.0)
+            trainer.save_checkpoint(folder.last_checkpoint)
+            if not rank_zero:
+                return folder
+            metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+            folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step),
+                          epochs=int(trainer.current_epoch), fit_time_s=fit_s, metrics=metrics,
+                          robot_sdf_artifact_id=getattr(system, "robot_sdf_artifact_id", None))
+            evaluated = after_fit(cfg, system, datamodule, folder.path)
+            metrics.update(evaluated)
+            record = folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id")
+                                   or folder.read().get("robot_sdf_artifact_id"))
+            finish_loggers(loggers, record, evaluated, step=int(trainer.global_step), final=metrics)
+    except (KeyboardInterrupt, Terminated) as err:
+        err.run_folder = folder  # the command line says whether it can be resumed
+        raise
     return folder
 
 

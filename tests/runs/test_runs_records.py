@@ -164,3 +164,14 @@ def test_the_resume_hint_appears_only_when_the_run_can_be_resumed(tmp_path):
 
     given = late.split("`")[1].split(" ", 3)[3][1:-1]  # what the shell hands over: resume="..."
     assert OverridesParser.create().parse_override(given).value() == str(run.path), "Hydra reads another folder"
+
+
+def test_tables_by_dotted_keys_get_files_of_their_own(tmp_path):
+    from samp.runs.tables import write_table
+
+    a = write_table(tmp_path / "table_by_datamodule.n_e", ["datamodule.n_e"], [["40"]])
+    b = write_table(tmp_path / "table_by_datamodule.dataset", ["datamodule.dataset"], [["smoke"]])
+    assert [p.name for p in a + b] == ["table_by_datamodule.n_e.md", "table_by_datamodule.n_e.csv",
+                                       "table_by_datamodule.dataset.md", "table_by_datamodule.dataset.csv"]
+    assert "40" in a[0].read_text() and "smoke" in b[0].read_text()
+    assert [p.name for p in write_table(tmp_path / "mine.md", ["k"], [["v"]])] == ["mine.md", "mine.csv"]

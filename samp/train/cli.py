@@ -67,12 +67,22 @@ def _cfg_flags(argv: list[str]) -> tuple[str | None, bool | None, list[str]]:
 
 def _print_config(overrides: list[str], show: str, resolve: bool | None) -> None:
     """`--cfg`: the config a run would get (checked as for a run; interpolations resolved where they can be),
-    `hydra:` Hydra's own settings (as written), or both."""
+    `hydra:` Hydra's own settings (as written), or both. For a sweep (`-m`, `sweep=NAME`): its first member's."""
     from omegaconf import OmegaConf
 
     from samp.cli import compose, config_yaml
 
-    overrides = _resume_overrides([a for a in overrides if a not in ("-m", "--multirun")])
+    from samp.cli import canonical_overrides
+
+    sweep = any(a in ("-m", "--multirun") for a in overrides) or any(a.lstrip("+").startswith("sweep=")
+                                                                      for a in overrides)
+    overrides = [a for a in overrides if a not in ("-m", "--multirun")]
+    if sweep:  # a sweep: the config of its first member
+        from samp.train.sweep import _first_member
+
+        hydra_keys = [a for a in overrides if a.startswith("hydra")]
+        overrides = _first_member(canonical_overrides("train", overrides)) + hydra_keys
+    overrides = _resume_overrides(overrides)
     cfg = compose_train_config(overrides)
     if show in ("job", "all"):
         print(config_yaml(cfg, resolve), end="")

@@ -134,7 +134,9 @@ STEPS: list[tuple[str, object]] = [
      Run(f"python -m samp.train experiment=robot_sdf_panda model=robot_sdf_nn {SDF_RUN}")),
     ("python -m samp.train experiment=robot_sdf_iiwa", Compose("experiment=robot_sdf_iiwa", "another robot's "
                                                               "samples; the recipe runs above for the panda")),
-    ("python tools/bench.py robot_sdf", Skip("trains two networks for minutes; tests/tools runs the suite shrunk")),
+    ("python tools/bench.py robot_sdf",
+     Run("python {repo}/tools/bench.py robot_sdf --override robot_sdf_samples=tiny trainer.max_steps=40",
+         ["runs/robot_sdf_compare_panda/*/robot_sdf_table.md", "runs/robot_sdf_compare_panda/*/robot_sdf_nn/robot_sdf.pt"])),
     # Policies that cannot run here, composed
     ("python -m samp.train experiment=samp_n100 datamodule.dataset=standard trainer=gpu",
      Compose("experiment=samp_n100 datamodule.dataset=standard trainer=gpu", GPU)),

@@ -88,7 +88,7 @@ POLICY = ("datamodule.dataset=smoke datamodule.n_e=16 datamodule.val_samples=50 
 SWEPT = (f"{POLICY} system.robot_sdf=robot_sdf_panda_quick callbacks.eval.problems=1 callbacks.eval.every_k_epochs=1 "
          "\"hydra.sweeper.params.experiment='samp_n40,samp_n70'\"")
 EVAL = "problems=1 splits=[val] benchmark=null record=false"
-SWEEP = "runs/sweeps/anchor_size"
+SWEEP = "{tmp}/runs/sweeps/anchor_size"  # README paths under runs/ are under $SAMP_RUNS_DIR here
 MEMBERS = [f"{SWEEP}/experiment=samp_n40/run.json", f"{SWEEP}/experiment=samp_n70/run.json"]
 GPU = "needs a GPU"
 SLURM = "needs a SLURM cluster"
@@ -215,11 +215,11 @@ STEPS: list[tuple[str, object]] = [
     # Looking at runs
     ("python -m samp.runs ls", Run("python -m samp.runs ls", prints=["quickstart"])),
     ("python -m samp.runs ls experiment=samp_n100 status=completed keys=eval/samp/benchmark/success_rate",
-     Run("python -m samp.runs ls experiment=samp_n40 status=completed keys=eval/samp/val/success_rate",
-         prints=["samp_n40"])),
+     Run("python -m samp.runs ls experiment=quickstart status=completed keys=eval/samp/val/success_rate",
+         prints=["1 run(s)"])),
     ("python -m samp.runs ls protocol=1", Run("python -m samp.runs ls protocol=1")),
     ("python -m samp.runs show runs/samp_n100/2026-05-01_10-00-00",
-     Run(f"python -m samp.runs show {SWEEP}/experiment=samp_n40", prints=["samp_n40"])),
+     Run(f"python -m samp.runs show {SWEEP}/experiment=samp_n40", prints=["experiment=samp_n40"])),
     ("python -m samp.runs compare RUN_A RUN_B",
      Run(f"python -m samp.runs compare {SWEEP}/experiment=samp_n40 {SWEEP}/experiment=samp_n70")),
     ("python -m samp.runs table runs/sweeps/anchor_size by=datamodule.n_e metrics=eval/samp/benchmark/success_rate,"
@@ -285,8 +285,8 @@ def _snapshot(root: Path) -> dict[str, int]:
 
 
 class _Runner:
-    def __init__(self, tmp: Path):
-        self.tmp, self.work = tmp, tmp / "work"
+    def __init__(self, tmp: Path, monkeypatch):
+        self.tmp, self.work, self.monkeypatch = tmp, tmp / "work", monkeypatch
         self.work.mkdir()
         self.env = {**os.environ, "SAMP_RUNS_DIR": str(tmp / "runs"), "SAMP_DATASETS_DIR": str(tmp / "datasets"),
                     "SAMP_CACHE_DIR": str(tmp / "cache"), "OMP_NUM_THREADS": "1", "RERUN_ANALYTICS": "0",
@@ -304,14 +304,41 @@ class _Runner:
             argv[0] = sys.executable
         return argv
 
+    def _call(self, argv: list[str], timeout: int = 900) -> tuple[int, str, str]:
+        """(exit code, stdout, stderr) of `argv`. The quick read-only entry points (listing, showing,
+        composing) run in this process, with the same environment and working folder: a Python start
+        with torch costs seconds each; everything that trains, plans or evaluates runs as a subprocess."""
+        module = argv[2] if argv[1:2] == ["-m"] else None
+        quick = module == "samp.runs" or (module == "samp.data" and argv[3] in ("ls", "show", "verify", "inspect")) \
+            or (module == "samp.train" and any(a.startswith("--cfg") for a in argv))
+        if not quick:
+            out = subprocess.run(argv, cwd=self.work, env=self.env, capture_output=True, text=True, timeout=timeout)
+            return out.returncode, out.stdout, out.stderr
+        import contextlib
+        import importlib
+        import io
+
+        main = importlib.import_module(f"{module}.__main__" if module != "samp.train" else "samp.train.cli").main
+        stdout, stderr = io.StringIO(), io.StringIO()
+        with self.monkeypatch.context() as mp:
+            for key in ("SAMP_RUNS_DIR", "SAMP_DATASETS_DIR", "SAMP_CACHE_DIR"):
+                mp.setenv(key, self.env[key])
+            mp.chdir(self.work)
+            with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+                try:
+                    code = main(argv[3:])
+                except SystemExit as err:
+                    code = err.code
+        return int(code or 0), stdout.getvalue(), stderr.getvalue()
+
     def run(self, command: str, step) -> None:
         start = time.perf_counter()
         if isinstance(step, Run):
             argv = self._argv(step.shrunk)
-            out = subprocess.run(argv, cwd=self.work, env=self.env, capture_output=True, text=True, timeout=900)
-            text = out.stdout + out.stderr
-            if out.returncode != 0:
-                self.failures.append(f"{command}\n  ran {shlex.join(argv)}\n  exit {out.returncode}: {text[-1500:]}")
+            code, stdout, stderr = self._call(argv)
+            text = stdout + stderr
+            if code != 0:
+                self.failures.append(f"{command}\n  ran {shlex.join(argv)}\n  exit {code}: {text[-1500:]}")
             for pattern in step.writes:
                 pattern = pattern.format(**self.fields())
                 base, pattern = (Path("/"), pattern[1:]) if pattern.startswith("/") else (self.tmp, pattern)
@@ -324,9 +351,9 @@ class _Runner:
             args = self._argv("python -m samp.train " + step.args)
             if "--cfg" not in args:
                 args.append("--cfg=job")
-            out = subprocess.run(args, cwd=self.work, env=self.env, capture_output=True, text=True, timeout=300)
-            if out.returncode != 0 or not out.stdout.strip():
-                self.failures.append(f"{command} ({step.reason}) does not compose:\n  {out.stderr[-1500:]}")
+            code, stdout, stderr = self._call(args, timeout=300)
+            if code != 0 or not stdout.strip():
+                self.failures.append(f"{command} ({step.reason}) does not compose:\n  {stderr[-1500:]}")
         elif isinstance(step, File):
             path = Path(step.path.format(**self.fields()))
             if not path.is_file():
@@ -335,10 +362,10 @@ class _Runner:
 
 
 @pytest.mark.slow
-def test_every_readme_command_works_where_it_says(tmp_path):
+def test_every_readme_command_works_where_it_says(tmp_path, monkeypatch):
     """Every step of STEPS in order; the repository tree is unchanged afterwards and everything written
     lies under the temporary folder's documented places."""
-    runner = _Runner(tmp_path)
+    runner = _Runner(tmp_path, monkeypatch)
     cameras = CAMERA_YAML.search(README.read_text())
     assert cameras, "the README's camera-set YAML example is gone"
     (tmp_path / "path" / "to").mkdir(parents=True)

@@ -135,7 +135,7 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.train experiment=robot_sdf_iiwa", Compose("experiment=robot_sdf_iiwa", "another robot's "
                                                               "samples; the recipe runs above for the panda")),
     ("python tools/bench.py robot_sdf",
-     Run("python {repo}/tools/bench.py robot_sdf --override robot_sdf_samples=tiny trainer.max_steps=40",
+     Run("python {repo}/tools/bench.py robot_sdf --sdf-eval tiny --override robot_sdf_samples=tiny trainer.max_steps=40",
          ["runs/robot_sdf_compare_panda/*/robot_sdf_table.md", "runs/robot_sdf_compare_panda/*/robot_sdf_nn/robot_sdf.pt"])),
     # Policies that cannot run here, composed
     ("python -m samp.train experiment=samp_n100 datamodule.dataset=standard trainer=gpu",
@@ -185,9 +185,9 @@ STEPS: list[tuple[str, object]] = [
          f"out={{tmp}}/recon2 {EVAL}", ["recon2/metrics.json"])),
     # Resuming the demo's run for one more epoch; the other spellings composed
     ("python -m samp.train resume=runs/samp_n100/2026-05-01_10-00-00 trainer.max_epochs=200",
-     Run("python -m samp.train resume={run} trainer.max_epochs=2", prints=["resuming from last.ckpt"])),
+     Compose("resume={run} trainer.max_epochs=200", "tests/runs/test_runs_resume.py interrupts a run and resumes it")),
     ("python -m samp.train resume=runs/samp_n100/2026-05-01_10-00-00",
-     Compose("resume={run}", "the run is complete; resumed once above")),
+     Compose("resume={run}", "as above")),
     ("python -m samp.train resume=runs/samp_n100/<timestamp>", Compose("resume={run}", "as above")),
     ("python -m samp.train experiment=samp_n100 resume=runs/samp_n100/<timestamp>",
      Compose("experiment=samp_n100 resume={run}", "as above")),

@@ -1,11 +1,12 @@
 """Table III in one run: SAMP's hash grid, NN-SDF, RDF (N = 8) and RDF (N = 24) on the same samples.
 
-The two networks are trained by the ordinary recipe (`samp.train`, each in its own run folder inside
-the comparison's folder, with the same experiment and overrides; never under `runs/robot_sdf_<robot>/`,
-so the comparison does not change which robot SDF a later policy run resolves by name); the RDF models are fitted by least squares on the samples those runs
-used. All four are then evaluated together (`evaluate_methods`) into one comparison folder,
-`runs/robot_sdf_compare_<robot>/<timestamp>/`: robot_sdf_table.{md,json}, robot_sdf.rrd, the RDF
-artifacts and a run.json that names the runs and the dataset. `tools/bench.py robot_sdf` calls this.
+The two networks are trained by the ordinary recipe (`samp.train`, each in its own run folder inside the
+comparison's folder, with the same experiment and overrides; never under `runs/robot_sdf_<robot>/`, so the
+comparison does not change which robot SDF a later policy run resolves by name); the RDF models are fitted by
+least squares on the samples those runs used. All four are then evaluated together (`evaluate_methods`) into
+one comparison folder, `runs/robot_sdf_compare_<robot>/<timestamp>/`: robot_sdf_table.{md,json},
+robot_sdf.rrd, the RDF artifacts and a run.json that names the runs and the dataset. `tools/bench.py
+robot_sdf` calls this.
 """
 
 from __future__ import annotations

@@ -9,12 +9,13 @@
 conf/train.yaml's defaults list.) `samp.train` composes with Hydra's compose API; `-m` (or `sweep=NAME`)
 hands the arguments to `multirun` here, which runs Hydra's own `main` on conf/train.yaml so that sweepers
 and launchers (basic, joblib, submitit/SLURM) work as Hydra documents them. A sweep config (conf/sweep/NAME.yaml) sets
-`hydra.sweeper.params` and `hydra.sweep.dir` (runs/sweeps/NAME). Every member is exactly
-`samp.train.train(its overrides, run_dir=<member folder>)` (the folder passed as data), so it is checked, recorded and evaluated like
-a single run. Its folder is `<sweep dir>/<override_dirname>`, built from the overrides that vary between
-members and the experiment, e.g. `runs/sweeps/anchor_size/experiment=samp_n40/`; the other overrides
-are recorded in the member's run.json. A member folder named before `experiment` joined the defaults list
-(`+experiment=samp_n40`) is still found and used in place.
+`hydra.sweeper.params` and `hydra.sweep.dir` (runs/sweeps/NAME). Every member is exactly `samp.train.train(its
+overrides, run_dir=<member folder>)` (the folder passed as data, never as an override string), so it is
+checked, recorded and evaluated like a single run. Its folder is `<sweep dir>/<override_dirname>`, built from
+the overrides that vary between members and the experiment, e.g.
+`runs/sweeps/anchor_size/experiment=samp_n40/`; the other overrides are recorded in the member's run.json. A
+member folder named before `experiment` joined the defaults list (`+experiment=samp_n40`) is still found and
+used in place.
 
 Running a sweep again: a member whose run.json says completed with the same overrides is skipped; one
 completed with other overrides is an error (use another `hydra.sweep.dir`); an interrupted or failed

@@ -10,7 +10,7 @@ import hashlib
 import os
 from pathlib import Path
 
-__all__ = ["REPO_ROOT", "cache_dir", "conf_dir", "file_sha256", "resolve_asset"]
+__all__ = ["REPO_ROOT", "cache_dir", "conf_dir", "file_sha256", "find_checkpoint", "resolve_asset"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PYBULLET_DATA_SCHEME = "pybullet_data://"
@@ -58,3 +58,19 @@ def file_sha256(path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def find_checkpoint(run_dir: str | Path) -> Path:
+    """A run folder's policy checkpoint: `checkpoints/best.ckpt`, else `checkpoints/last.ckpt`;
+    FileNotFoundError naming what is there."""
+    from samp.names import CHECKPOINT_PREFERENCE, CHECKPOINTS_DIR
+
+    folder = Path(run_dir) / CHECKPOINTS_DIR
+    for name in CHECKPOINT_PREFERENCE:
+        if (folder / name).is_file():
+            return folder / name
+    present = sorted(p.name for p in folder.glob("*")) if folder.is_dir() else []
+    what = f"it holds {present}" if present else ("it is empty" if folder.is_dir() else "the folder does not exist")
+    raise FileNotFoundError(f"no checkpoint to evaluate in {folder}: expected {' or '.join(CHECKPOINT_PREFERENCE)} "
+                            f"({what}). Train the run to at least one checkpoint, or evaluate the expert with "
+                            "planner=expert dataset=REF")

@@ -80,18 +80,21 @@ def _open_dataset(cfg, run):
 
 def _planner(cfg, run, manifest: dict):
     from samp.eval.loading import load_planner
+    from samp.device import resolve_device
     from samp.robot import load_robot
 
     if run is not None:
         from samp.eval.loading import check_policy_robot
 
-        policy = load_planner(run.path)
+        options = {} if cfg.robot_sdf_tables is None else {"robot_sdf_tables": cfg.robot_sdf_tables}
+        policy = load_planner(run.path, device=cfg.device, **options)
         check_policy_robot(policy, manifest)
         if cfg.n_e is not None:
             policy.n_e = cfg.n_e
         return policy
     robot = load_robot(manifest["robot"]["name"])
     if cfg.planner == "straight":
+        robot = robot.to(resolve_device(cfg.device))
         return load_planner("straight", robot=robot, max_step=cfg.straight_max_step, n_e=cfg.n_e)
     from samp.eval.planners import EXPERT_VARIANTS
 

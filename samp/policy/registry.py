@@ -15,7 +15,9 @@ from pathlib import Path
 
 import torch
 
+from samp.device import resolve_device
 from samp.names import CHECKPOINT_RECORD
+from samp.paths import find_checkpoint
 
 __all__ = ["load_policy", "load_system", "policy_kinds", "read_checkpoint", "register_policy"]
 
@@ -77,11 +79,14 @@ def _legacy_record(ckpt: dict) -> dict:
 
 
 def read_checkpoint(checkpoint: str | Path | dict, map_location="cpu") -> dict:
-    """A policy checkpoint as a dict with its `samp` record (older formats translated)."""
+    """A policy checkpoint (a file, a run folder or the loaded dict) as a dict with its `samp` record
+    (older formats translated)."""
     if isinstance(checkpoint, dict):
         ckpt = checkpoint
     else:
         path = Path(checkpoint)
+        if path.is_dir():
+            path = find_checkpoint(path)
         if not path.is_file():
             raise FileNotFoundError(f"no checkpoint at {path}")
         ckpt = torch.load(path, map_location=map_location, weights_only=False)
@@ -94,7 +99,7 @@ def read_checkpoint(checkpoint: str | Path | dict, map_location="cpu") -> dict:
 
 
 def load_system(checkpoint: str | Path | dict, map_location="cpu"):
-    """The trained system a policy checkpoint holds, whatever its kind, in eval mode."""
+    """The trained system a policy checkpoint (or a run folder's) holds, whatever its kind, in eval mode."""
     ckpt = read_checkpoint(checkpoint, map_location)
     kind = ckpt[CHECKPOINT_RECORD].get("kind")
     _discover()
@@ -103,7 +108,10 @@ def load_system(checkpoint: str | Path | dict, map_location="cpu"):
     return _SYSTEMS[kind].from_checkpoint(ckpt, map_location)
 
 
-def load_policy(checkpoint: str | Path | dict, run_dir: str | Path | None = None, **options):
-    """The planner of a policy checkpoint (a `StepPolicy`, or a `TrajectoryPlanner` for MPNet), with
-    `options` for its `planner(...)`. The run folder is not needed: a checkpoint is whole."""
-    return load_system(checkpoint).planner(**options)
+def load_policy(checkpoint: str | Path | dict, run_dir: str | Path | None = None, *,
+                device: str | torch.device | None = "cpu", **options):
+    """The planner of a policy checkpoint or run folder (a `StepPolicy` with `plan`, or a `TrajectoryPlanner`
+    for MPNet), on `device` (auto | cpu | cuda[:N]), with `options` for its `planner(...)`. The run folder
+    is not needed besides a checkpoint file: a checkpoint is whole."""
+    device = resolve_device(device)
+    return load_system(checkpoint).to(device).planner(**options)

@@ -106,6 +106,9 @@ def _ls(args: list[str]) -> None:
         return
     print(f"{'name@id':<32} {'created':<26} {'scenes':>6} {'trajs':>7} {'eval':>6} {'MB':>8}")
     for d in rows:
+        if d.get("damaged"):
+            print(f"{d['name'] + '@' + d['id']:<32} DAMAGED: {d['damaged']}")
+            continue
         mb = sum(f.stat().st_size for f in Path(d["path"]).iterdir()) / 1e6
         counts = d.get("counts", {})
         print(f"{d['name'] + '@' + d['id']:<32} {d['created']:<26} {counts.get('scenes', '-'):>6} "

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from samp.data.mcap_io import SceneRecord, write_scene_file
-from samp.data.registry import FORMAT_VERSION, datasets_root, finalize_dataset
+from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
 from samp.names import SPLIT_ALIASES, SPLITS
 
@@ -60,7 +60,7 @@ def work_dir(spec: DatasetSpec, root: Path | str | None = None) -> Path:
 
 def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str) -> dict:
     """The `samp.dataset` metadata record of a scene file: deterministic, no times or versions."""
-    return {"format_version": FORMAT_VERSION, "dataset": spec.name, "config_hash": spec.config_hash(),
+    return {"format_version": SCENE_FILE_VERSION, "dataset": spec.name, "config_hash": spec.config_hash(),
             "robot": spec.robot, "robot_asset_hash": asset_hash, "scene_index": job.index, "split": job.split,
             "generator": job.generator, "scene_namespace": spec.namespace, "scene_seed": job.seed}
 

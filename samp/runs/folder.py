@@ -150,14 +150,21 @@ class RunFolder:
             with _sigterm_raises():
                 yield self
         except (KeyboardInterrupt, SystemExit, Terminated):
-            self.update(status="interrupted", end=_now())
+            self.update(status="interrupted", end=_now(), **self._hashes())
             raise
         except BaseException as err:
             self.update(status="failed", end=_now(), error=f"{type(err).__name__}: {err}",
-                        traceback=traceback.format_exc(limit=20))
+                        traceback=traceback.format_exc(limit=20), **self._hashes())
             raise
         else:
-            self.update(status="completed", end=_now())
+            self.update(status="completed", end=_now(), **self._hashes())
+
+    def _hashes(self) -> dict:
+        """{"files_sha256": ...}: the sha256 of the run's checkpoints and artifacts as the run ends, which
+        loading them checks (`samp.integrity.check_recorded_hash`)."""
+        from samp.integrity import FILES_SHA256, hash_run_files
+
+        return {FILES_SHA256: hash_run_files(self.path)}
 
 
 class Terminated(BaseException):

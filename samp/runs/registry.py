@@ -21,7 +21,7 @@ from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rat
 __all__ = ["EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "pooled", "varying_keys"]
 
 EVAL_METRICS = Path("eval") / "metrics.json"  # written by `python -m samp.eval` (samp.eval.names)
-HIDDEN = ("config", "metrics", "packages", "traceback", "command", "starts", "loggers")  # not keys of their own
+HIDDEN = ("config", "metrics", "packages", "traceback", "command", "starts", "loggers", "files_sha256")  # not keys of their own
 
 
 @dataclass

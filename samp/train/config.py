@@ -32,6 +32,7 @@ class TrainSchema:
     evaluation: Any = None
     run_dir: Any = None
     resume: Any = None
+    trust_checkpoint: bool = False
 
 
 def _groups() -> set[str]:

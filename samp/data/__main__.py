@@ -48,12 +48,16 @@ def _root(cfg_or_args) -> Path | None:
 def _generate(overrides: list[str]) -> None:
     from omegaconf import OmegaConf
 
-    from samp.data.generation import generate
+    from samp.data.generation import GenerationInterrupted, generate
 
     cfg = _config(overrides)
     spec = OmegaConf.to_container(cfg.dataset, resolve=True)
-    dest = generate(spec, shard=cfg.shard, num_shards=cfg.num_shards, workers=cfg.workers, root=_root(cfg),
-                    progress=cfg.progress)
+    try:
+        dest = generate(spec, shard=cfg.shard, num_shards=cfg.num_shards, workers=cfg.workers, root=_root(cfg),
+                        progress=cfg.progress)
+    except GenerationInterrupted as err:  # Ctrl-C: one line, the conventional exit status of SIGINT
+        print(err, file=sys.stderr)
+        raise SystemExit(130) from None
     if dest is not None:
         _print_summary(dest)
 

@@ -148,6 +148,8 @@ def list_datasets(root: Path | None = None) -> list[dict]:
     out = []
     for manifest_path in sorted(root.glob(f"*/*/{MANIFEST}")):
         folder = manifest_path.parent
+        if folder.name.startswith(".") or folder.parent.name.startswith("."):  # .tmp-* of an unfinished write
+            continue
         try:
             m = read_manifest(folder, check_sizes=False)
         except DatasetError as err:  # listed, marked damaged: `open` and `verify` say what is wrong

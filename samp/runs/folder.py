@@ -18,12 +18,16 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["CHECKPOINTS_DIR", "CONFIG_DIR", "LAST_CHECKPOINT", "METRICS_CSV", "RUN_JSON", "STATUSES", "RunFolder",
-           "Terminated", "runs_root"]
+__all__ = ["CHECKPOINTS_DIR", "CONFIG_DIR", "LAST_CHECKPOINT", "METRICS_CSV", "RUN_JSON", "STATUSES", "DamagedRecord",
+           "RunFolder", "Terminated", "runs_root"]
 
 from samp.names import CHECKPOINTS_DIR, CONFIG_DIR, LAST_CHECKPOINT, METRICS_CSV, RUN_JSON
 
 STATUSES = ("running", "completed", "failed", "interrupted")
+
+
+class DamagedRecord(ValueError):
+    """A run.json that is not a JSON object of the expected shape (its path and what is wrong in the message)."""
 
 
 def _now() -> str:
@@ -68,7 +72,7 @@ class RunFolder:
         already holds a run, which is never overwritten."""
         path = Path(path)
         if (path / RUN_JSON).is_file():
-            status = json.loads((path / RUN_JSON).read_text()).get("status")
+            status = RunFolder(path).read().get("status")
             raise ValueError(f"{path} already holds a run (status {status}); continue it with resume={path}, "
                              "or choose another run_dir")
         path.mkdir(parents=True, exist_ok=True)
@@ -120,8 +124,24 @@ class RunFolder:
         return len(dropped)
 
     def read(self) -> dict:
+        """The record ({} before the first one); DamagedRecord naming the file when it is not a JSON
+        object, or when its config or metrics are not objects."""
         path = self.path / RUN_JSON
-        return json.loads(path.read_text()) if path.is_file() else {}
+        if not path.is_file():
+            return {}
+        try:
+            record = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise DamagedRecord(f"{path} is not valid JSON ({err}); the run record is damaged: restore it, or move the "
+                                "run folder away") from None
+        if not isinstance(record, dict):
+            raise DamagedRecord(f"{path} holds a JSON {type(record).__name__}, not a run record (an object); restore it, "
+                                "or move the run folder away")
+        for key in ("config", "metrics"):
+            if record.get(key) is not None and not isinstance(record[key], dict):
+                raise DamagedRecord(f"{path}: '{key}' is a {type(record[key]).__name__}, not an object; the run record "
+                                    "is damaged: restore it, or move the run folder away")
+        return record
 
     def update(self, **fields) -> dict:
         """Merge `fields` into run.json (written to a temporary file, then renamed into place)."""

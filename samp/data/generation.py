@@ -300,11 +300,11 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
     root = Path(root) if root else datasets_root()
     work = work_dir(spec, root)
     jobs = spec.scene_jobs()
-    if not work.is_dir():  # nothing to merge: merged already (by a shard finishing at the same time), or never made
-        return _merged_already(spec, root, work)
+    if not work.is_dir():  # merged already (by a shard finishing at the same time), or never generated
+        return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)  # the latter names what is missing
     with _merge_lock(work, spec.name):
         if not work.is_dir():  # the process we waited for merged it
-            return _merged_already(spec, root, work)
+            return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)
         return _merge_locked(spec, root, work, jobs)
 
 
@@ -332,14 +332,13 @@ def _merge_lock(work: Path, name: str):
         os.close(fd)  # releases the lock
 
 
-def _merged_already(spec: DatasetSpec, root: Path, work: Path) -> Path:
-    """The dataset this spec was merged into, when its work folder is gone; GenerationError otherwise."""
+def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
+    """The dataset this spec was merged into (its work folder is gone), or None."""
     from samp.data.registry import list_datasets
 
     made = [d for d in list_datasets(root) if d["name"] == spec.name and d.get("config_hash") == spec.config_hash()]
     if not made:
-        raise GenerationError(f"nothing to merge for {spec.name!r}: {work} does not exist and no dataset of this spec "
-                              f"is under {root}; run `python -m samp.data generate +dataset={spec.name}` first")
+        return None
     newest = max(made, key=lambda d: d["created"])
     print(f"{spec.name}: already merged into {newest['name']}@{newest['id']}")
     return Path(newest["path"])

@@ -129,5 +129,5 @@ def test_a_live_merge_is_waited_for_and_its_dataset_returned(scenes_done, tmp_pa
 
 
 def test_nothing_to_merge_is_an_error(tmp_path):
-    with pytest.raises(GenerationError, match="nothing to merge for 'halted'"):
+    with pytest.raises(GenerationError, match=r"cannot merge 'halted': 4 of 4 scenes are not generated yet"):
         merge(SPEC, tmp_path)

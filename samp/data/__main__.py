@@ -147,7 +147,11 @@ def _verify(args: list[str]) -> None:
         for p in problems:
             print(f"  {p}", file=sys.stderr)
         raise SystemExit(1)
-    print(f"dataset {folder}: every file matches its sha256")
+    from samp.data.registry import read_manifest
+
+    hashed = read_manifest(folder, check_sizes=False).get("format_version", 1) >= 2
+    print(f"dataset {folder}: every file matches its sha256, and the scene files hold what the manifest says"
+          + (" (its own hash matches too)" if hashed else " (format version 1: the manifest carries no hash of its own)"))
 
 
 def _inspect(args: list[str]) -> None:

@@ -170,15 +170,15 @@ def open_dataset(ref: str | Path, root: Path | None = None) -> Dataset:
     problems = file_problems(path, manifest)
     if problems:
         raise DatasetError(f"dataset {path} fails verification: {'; '.join(problems[:3])}"
-                           f"{f' (and {len(problems) - 3} more)' if len(problems) > 3 else ''}. "
+                           f"{f' (and {len(problems) - 3} more)' if len(problems) > 3 else ''}; "
                            f"{recreate_hint(path, manifest)}")
     try:
         records = [read_scene_file(path / s["file"], resolutions=[]) for s in manifest["scenes"]]
     except ValueError as err:
-        raise DatasetError(f"{err}. {recreate_hint(path, manifest)}") from None
+        raise DatasetError(f"{err}; {recreate_hint(path, manifest)}") from None
     problems = scene_count_problems(path, manifest, records)
     if problems:
-        raise DatasetError(f"dataset {path} fails verification: {problems[0]}. {recreate_hint(path, manifest)}")
+        raise DatasetError(f"dataset {path} fails verification: {problems[0]}; {recreate_hint(path, manifest)}")
     return Dataset(path, manifest, records)
 
 

@@ -101,7 +101,7 @@ def _load(torch, path: Path, what: str, kwargs: dict):
             f"samp), load it with trust_checkpoint=true (load_policy(..., trust_checkpoint=True)) or "
             f"{TRUST_ENV}=1") from None
     except (RuntimeError, EOFError, OSError, ValueError, KeyError) as err:
-        raise IntegrityError(f"{path} is not a readable {what}: {type(err).__name__}: {str(err).splitlines()[0]}. It "
+        raise IntegrityError(f"{path} is not a readable {what}: {type(err).__name__}: {str(err).splitlines()[0].rstrip('.')}. It "
                              "is truncated or damaged; restore it, or train the run again") from None
 
 

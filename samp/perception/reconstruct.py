@@ -241,14 +241,14 @@ def checked_scans(scans: list[Scan], lattice: Lattice, padding: float,
     extent = float(np.ptp(hits, axis=0).max())
     where = (f"the points span {np.round(hits.min(0), 3).tolist()} to {np.round(hits.max(0), 3).tolist()} m, the "
              f"workspace bounds are {[list(b) for b in lattice.bounds]} m (+ {padding} m padding)")
-    hint = (f"the cloud is {extent:.0f} units wide: if it is in millimetres, scale it by 0.001" if extent > MILLIMETRES
-            else "if the cloud is in another frame (the sensor's), give its sensor -> base transform "
+    hint = (f"The cloud is {extent:.0f} units wide: if it is in millimetres, scale it by 0.001" if extent > MILLIMETRES
+            else "If the cloud is in another frame (the sensor's), give its sensor -> base transform "
                  "(scan_from_file(..., transform=T)) or fix the extrinsics")
     if n_in < max(MIN_INSIDE, MIN_INSIDE_SHARE * n):
         raise ValueError(f"only {_share(n_in, n)} lie inside the workspace: {where}. {hint}")
     if n - n_in > WARN_OUTSIDE_SHARE * n:
         warnings.warn(f"{_share(n - n_in, n)} lie outside the workspace and are dropped: {where}. Expected when the "
-                      f"bounds are tighter than the scene; otherwise {hint}", stacklevel=3)
+                      f"bounds are tighter than the scene. {hint}", stacklevel=3)
     if known_free is not None:
         on_robot = int(np.asarray(known_free(hits[inside]), dtype=bool).sum())
         if on_robot > WARN_ON_ROBOT_SHARE * n_in:

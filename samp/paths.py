@@ -79,8 +79,7 @@ def check_name(name, what: str) -> str:
     elif text.startswith("."):
         problem = "it starts with '.' (a hidden folder)"
     if problem:
-        raise ValueError(f"{what} {name!r} is not a plain folder name: {problem}. Use letters, digits, '_', '-' "
-                         "(e.g. my_dataset)")
+        raise ValueError(f"{what} {name!r} is not a plain folder name: {problem}. Use letters, digits, '_' and '-'")
     return text
 
 

@@ -52,7 +52,7 @@ def _runs(folder: str | None, quiet: bool = False):
 
 def _report_damaged(damaged) -> None:
     for path, why in damaged:
-        print(f"damaged run record, left out: {path}: {why}", file=sys.stderr)
+        print(f"damaged run record, left out: {why}", file=sys.stderr)  # `why` names the file
 
 
 def _args(command: str, args: list[str], keys: tuple[str, ...], subject: str | None = None, lists=("metrics",),
@@ -93,8 +93,8 @@ def _ls(args: list[str]) -> None:
     runs = [r for r in found if matches(r, filters)]
     header, rows = list_table(runs, opts.get("keys", []))
     print(markdown(header, rows) + f"\n{len(rows)} run(s)" + (f", {len(damaged)} damaged:" if damaged else ""))
-    for path, why in damaged:
-        print(f"DAMAGED {path}: {why}")
+    for _, why in damaged:
+        print(f"DAMAGED {why}")  # `why` names the file
     for protocol in sorted({r.protocol for r in runs if r.protocol is not None}, reverse=True):
         print(f"protocol {label(protocol)}")
 

@@ -52,8 +52,9 @@ class RunFolder:
     @classmethod
     def create(cls, root: Path | str, experiment: str) -> "RunFolder":
         """`<root>/<experiment>/<UTC timestamp>/`, with a numeric suffix if that second is taken."""
-        if not experiment or "/" in experiment or experiment.startswith("."):
-            raise ValueError(f"experiment name must be a plain folder name, got {experiment!r}")
+        from samp.paths import check_name
+
+        check_name(experiment, "experiment name")
         parent = Path(root) / experiment
         parent.mkdir(parents=True, exist_ok=True)
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d_%H-%M-%S")

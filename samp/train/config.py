@@ -177,6 +177,9 @@ def compose_train_config(overrides: list[str]):
     for key in ("name", "system", "datamodule"):
         if OmegaConf.is_missing(cfg, key):
             raise ValueError(f"the config sets no `{key}`; {PICK_EXPERIMENT}")
+    from samp.paths import check_name
+
+    check_name(cfg.name, "experiment name (name=...), the folder its runs go to,")
     plain = OmegaConf.to_container(cfg, resolve=False)
     try:  # types of the top-level values (seed must be an int, ...)
         OmegaConf.merge(OmegaConf.structured(TrainSchema), {k: v for k, v in plain.items() if k in schema_keys})

@@ -45,7 +45,9 @@ def _resume_overrides(overrides: list[str]) -> list[str]:
     if path in (None, ""):
         return overrides
     folder = RunFolder(_repo_path(str(path)))
-    recorded = [o for o in folder.read().get("overrides", []) if override_key(o) not in ("resume", "run_dir")]
+    # trust_checkpoint is never carried over: trusting a file is a decision for each load
+    recorded = [o for o in folder.read().get("overrides", [])
+                if override_key(o) not in ("resume", "run_dir", "trust_checkpoint")]
     return merge_overrides(recorded, overrides)
 
 

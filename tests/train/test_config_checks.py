@@ -19,6 +19,8 @@ from samp.train import compose_train_config
     ("datamodule.n_e=-1", "config key datamodule.n_e=-1 is out of range: n_e must be >= 2"),
     ("datamodule.batch_size=0", "config key datamodule.batch_size=0 is out of range: batch_size must be >= 1"),
     ("trainer.max_steps=1.5", "config key trainer.max_steps=1.5: pytorch_lightning.Trainer takes int"),
+    ("name=..", "experiment name (name=...), the folder its runs go to, '..' is not a plain folder name"),
+    ("name=a/b", "'a/b' is not a plain folder name: it holds a path separator"),
     ("seed=abc", "invalid top-level config value for key 'seed': Value 'abc' of type 'str' could not be converted"),
 ])
 def test_bad_values_are_refused_when_composed(override, message):

@@ -57,12 +57,13 @@ def manifest_hash(manifest: dict) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
-def recreate_hint(folder: Path, manifest: dict | None = None) -> str:
-    """What to do about a damaged dataset: restore it, or generate it again from its spec."""
+def recreate_hint(folder: Path, manifest: dict | None = None, how: str | None = None) -> str:
+    """What to do about a damaged dataset: restore it, or make it again (`how`; default: generate it from
+    its spec)."""
     name = (manifest or {}).get("name") or folder.parent.name
-    return (f"restore {folder} from a copy, or delete it and generate it again with "
-            f"`python -m samp.data generate dataset={name}` (the spec it was made from is under 'config' in "
-            f"its {MANIFEST})")
+    how = how or (f"generate it again with `python -m samp.data generate dataset={name}` (the spec it was made "
+                  f"from is under 'config' in its {MANIFEST})")
+    return f"restore {folder} from a copy, or delete it and {how}"
 
 
 def _data_files(folder: Path) -> list[Path]:

@@ -55,3 +55,48 @@ def test_the_policy_s_own_n_e_is_accepted(trained_run, tmp_path, capsys):
                  "compare_expert=false", "timed_problems=0", f"out={out}"])
     assert code == 0, capsys.readouterr().err
     assert (out / "metrics.json").is_file()
+
+
+def _copy_with_hash(trained_run, tmp_path):
+    """A copy of the run whose run.json records its checkpoint's sha256, as a finished run's does."""
+    import hashlib
+    import shutil
+
+    run = shutil.copytree(trained_run, tmp_path / "run")
+    record = json.loads((run / "run.json").read_text())
+    ckpt = run / "checkpoints" / "last.ckpt"
+    record["files_sha256"] = {"checkpoints/last.ckpt": hashlib.sha256(ckpt.read_bytes()).hexdigest()}
+    (run / "run.json").write_text(json.dumps(record))
+    return run, ckpt
+
+
+def test_a_flipped_byte_in_the_checkpoint_is_refused_by_the_evaluation(trained_run, tmp_path, capsys):
+    run, ckpt = _copy_with_hash(trained_run, tmp_path)
+    data = bytearray(ckpt.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    ckpt.write_bytes(bytes(data))
+    assert main([f"run={run}", "benchmark=null", f"out={tmp_path / 'eval'}"]) == 2
+    err = capsys.readouterr().err
+    assert f"{ckpt} is not the file its run recorded: sha256 expected" in err, err
+
+
+def test_a_crafted_checkpoint_in_a_run_folder_runs_no_code(trained_run, tmp_path, capsys):
+    """Whoever owns the run folder can also record the crafted file's hash: loading must still refuse it."""
+    marker = tmp_path / "pwned"
+
+    class Planted:
+        def __reduce__(self):
+            return (open, (str(marker), "w"))
+
+    run, ckpt = _copy_with_hash(trained_run, tmp_path)
+    good = torch.load(ckpt, weights_only=True)
+    torch.save({**good, "planted": Planted()}, ckpt)
+    run_json = json.loads((run / "run.json").read_text())
+    import hashlib
+
+    run_json["files_sha256"]["checkpoints/last.ckpt"] = hashlib.sha256(ckpt.read_bytes()).hexdigest()
+    (run / "run.json").write_text(json.dumps(run_json))
+    assert main([f"run={run}", "benchmark=null", f"out={tmp_path / 'eval'}"]) == 2
+    err = capsys.readouterr().err
+    assert "was refused" in err and "trust_checkpoint=true" in err, err
+    assert not marker.exists(), "evaluating the run ran the checkpoint's code"

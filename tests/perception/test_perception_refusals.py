@@ -20,7 +20,7 @@ N_E = 16
 
 @pytest.fixture(scope="module")
 def hits(panda, box_scene):
-    """The measured surface points of the box scene, every camera together (N, 3), and the origin of one."""
+    """The measured surface points of the box scene, every camera together: (N, 3) metres."""
     q = panda.home.numpy().copy()
     q[0] = 2.6
     with World(panda, box_scene) as world:

@@ -45,7 +45,7 @@ def _sha(path) -> str:
 
 
 class _Planted:
-    """Unpickling this calls os.system-like code: it writes the marker file."""
+    """Unpickling this calls code of its choosing: here it creates the marker file."""
 
     def __init__(self, marker: str):
         self.marker = marker

@@ -39,12 +39,12 @@ def test_cli_lists_compares_and_tabulates_around_it(runs, capsys):
     root, good, bad = runs
     assert main(["ls", f"root={root}"]) == 0
     out = capsys.readouterr().out
-    assert "2 run(s), 1 damaged:" in out and f"DAMAGED {bad / 'run.json'} " in out, out
+    assert "2 run(s), 1 damaged:" in out and f"DAMAGED {bad / 'run.json'}" in out, out
     assert all(f"{g.parent.name}/{g.name}" in out for g in good)
     key = "eval/samp/benchmark/success_rate"
     assert main(["table", str(root), "by=experiment", f"metrics={key}"]) == 0
     captured = capsys.readouterr()
-    assert "samp_n100" in captured.out and f"damaged run record, left out: {bad / 'run.json'} " in captured.err
+    assert "samp_n100" in captured.out and f"damaged run record, left out: {bad / 'run.json'}" in captured.err
     assert main(["compare", *map(str, good)]) == 0
     assert main(["paper-tables", f"root={root}", f"out={root / 'tables'}"]) == 0
     assert f"damaged run record, left out: {bad / 'run.json'}" in capsys.readouterr().err

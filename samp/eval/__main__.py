@@ -85,7 +85,7 @@ def _planner(cfg, run, manifest: dict):
     if run is not None:
         from samp.eval.loading import check_policy_robot
 
-        policy = load_planner(run.path, trust_checkpoint=cfg.trust_checkpoint or None)
+        policy = load_planner(run.path, **({"trust_checkpoint": True} if cfg.trust_checkpoint else {}))
         check_policy_robot(policy, manifest)
         own = getattr(policy, "n_e", None)
         if cfg.n_e is not None and own is not None and cfg.n_e != own:

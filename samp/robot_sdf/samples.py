@@ -197,13 +197,13 @@ def load_samples(folder: Path | str) -> SampleSet:
 
     folder = Path(folder)
     manifest = read_manifest(folder)
+    if manifest.get("generator") != SAMPLES_FORMAT:
+        raise ValueError(f"{folder} is not a robot SDF sample set ({SAMPLES_FORMAT}); its generator is "
+                         f"{manifest.get('generator')!r}")
     problems = file_problems(folder, manifest)
     if problems:
         raise DatasetError(f"sample set {folder} fails verification: {'; '.join(problems[:3])}; "
                            f"{recreate_hint(folder, manifest, 'let the next robot SDF training sample it again')}")
-    if manifest.get("generator") != SAMPLES_FORMAT:
-        raise ValueError(f"{folder} is not a robot SDF sample set ({SAMPLES_FORMAT}); its generator is "
-                         f"{manifest.get('generator')!r}")
     norm = json.loads((folder / NORMALISATION_FILE).read_text())
     points, sdf, link, near = [], [], [], []
     for i, name in enumerate(norm["links"]):

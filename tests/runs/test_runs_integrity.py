@@ -132,3 +132,42 @@ def test_resume_of_an_intact_run_still_works(copy, cli):
     assert record["status"] == "completed" and record["steps"] == 30
     assert record["files_sha256"]["checkpoints/last.ckpt"] == _sha(copy / "checkpoints" / "last.ckpt")
     assert os.path.getsize(copy / "checkpoints" / "last.ckpt") > 0
+
+
+def test_lightning_resume_itself_refuses_a_crafted_checkpoint(tmp_path):
+    """The recipe's resume path hands Lightning `weights_only=True` inside samp's allow-list
+    (`recipe._safe_resume`): even without the recipe's own pre-check, Lightning refuses to unpickle the
+    crafted file and its code never runs."""
+    import pickle
+
+    import pytorch_lightning as pl
+    from omegaconf import OmegaConf
+    from torch import nn
+
+    from samp.train.recipe import _safe_resume
+
+    class Tiny(pl.LightningModule):
+        def __init__(self):
+            super().__init__()
+            self.layer = nn.Linear(2, 1)
+
+        def training_step(self, batch, _):
+            return self.layer(batch[0]).sum()
+
+        def configure_optimizers(self):
+            return torch.optim.SGD(self.parameters(), lr=0.1)
+
+    data = torch.utils.data.DataLoader(torch.utils.data.TensorDataset(torch.zeros(4, 2)), batch_size=2)
+    trainer = pl.Trainer(max_steps=1, logger=False, enable_progress_bar=False, enable_model_summary=False,
+                         default_root_dir=tmp_path)
+    trainer.fit(Tiny(), data)
+    path = tmp_path / "last.ckpt"
+    trainer.save_checkpoint(path)
+    marker = tmp_path / "pwned"
+    torch.save({**torch.load(path, weights_only=True), "planted": _Planted(str(marker))}, path)
+    cfg = OmegaConf.create({"trust_checkpoint": False})
+    again = pl.Trainer(max_steps=2, logger=False, enable_progress_bar=False, enable_model_summary=False,
+                       default_root_dir=tmp_path)
+    with pytest.raises(pickle.UnpicklingError), _safe_resume(path, cfg):
+        again.fit(Tiny(), data, ckpt_path=str(path), weights_only=True)
+    assert not marker.exists(), "Lightning ran the checkpoint's code"

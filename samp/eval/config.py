@@ -52,7 +52,8 @@ class EvalConfig:
     seed: int = 0
     out: str | None = None  # output folder; default RUN/eval, or runs/eval/PLANNER_DATASET without a run
     overwrite: bool = False  # replace the files of an earlier evaluation in `out`
-    n_e: int | None = None  # grid resolution handed to the policy (null: the policy's own)
+    n_e: int | None = None  # grid resolution: a run's policy is refused at another n_e than its own (null: its own)
+    trust_checkpoint: bool = False  # unpickle the run's checkpoint fully (it can run code): only files you trust
     device: str = "auto"  # where the policy runs: auto (CUDA when there is a GPU) | cpu | cuda[:N]
     robot_sdf_tables: int | None = None  # samp policies: robot SDF tables (0: exact; null: the policy's own)
     grid_source: str = "exact"  # exact (the dataset's grids) | reconstructed (from simulated depth cameras)

@@ -20,6 +20,8 @@ class SAMPStepPolicy(Plannable):
         system.fitted()
         self.system, self.robot, self.name, self.n_e = system, system.robot, name, system.n_e
         self._features = None
+        # What depends only on the robot and the robot SDF's weights is built now, outside any timed step.
+        system.robot_sdf.self_distances(system.robot_sdf_tables)
 
     def reset(self, env) -> None:
         self.system.check_env(env)

@@ -86,10 +86,11 @@ class Robot(nn.Module):
         self.register_buffer("points", torch.from_numpy(points))
         self.register_buffer("point_links", torch.from_numpy(links).long())
         self.register_buffer("point_shells", torch.from_numpy(shells).long())
-        self.register_buffer("_link_frames", torch.tensor([self._frame[n] for n in self.link_names]))
-        # Which collision link (index into link_names) carries each point: the robot SDF's own-link pairs.
+        # Derived from the config (not saved with a model): the chain frames of the collision links, and which
+        # collision link (index into link_names) carries each point (the robot SDF's own-link pairs).
+        self.register_buffer("_link_frames", torch.tensor([self._frame[n] for n in self.link_names]), persistent=False)
         self.register_buffer("point_collision_links", torch.tensor(
-            [self.link_names.index(self.point_link_names[i]) for i in links], dtype=torch.long))
+            [self.link_names.index(self.point_link_names[i]) for i in links], dtype=torch.long), persistent=False)
         # Points are grouped by link: transform_points maps each link's contiguous run (index into link_names)
         # in one product.
         starts = np.searchsorted(links, np.arange(len(self.point_link_names) + 1))

@@ -114,4 +114,4 @@ class SelfDistances:
         b, m, l = torch.nonzero(self.network_pairs & ((bound < out[:, :, None]) | (bound == 0)), as_tuple=True)
         if len(b):
             out.view(-1).scatter_reduce_(0, b * M + m, sdf._pair_values(u[b, m, l], l), "amin")
-        return out.masked_fill(points.isnan().any(dim=-1), float("nan"))  # a NaN configuration stays NaN
+        return out.masked_fill(q.isnan().any(dim=-1, keepdim=True), float("nan"))  # an undefined robot: no distances

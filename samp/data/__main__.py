@@ -48,12 +48,16 @@ def _root(cfg_or_args) -> Path | None:
 def _generate(overrides: list[str]) -> None:
     from omegaconf import OmegaConf
 
-    from samp.data.generation import generate
+    from samp.data.generation import GenerationInterrupted, generate
 
     cfg = _config(overrides)
     spec = OmegaConf.to_container(cfg.dataset, resolve=True)
-    dest = generate(spec, shard=cfg.shard, num_shards=cfg.num_shards, workers=cfg.workers, root=_root(cfg),
-                    progress=cfg.progress)
+    try:
+        dest = generate(spec, shard=cfg.shard, num_shards=cfg.num_shards, workers=cfg.workers, root=_root(cfg),
+                        progress=cfg.progress)
+    except GenerationInterrupted as err:  # Ctrl-C: one line, the conventional exit status of SIGINT
+        print(err, file=sys.stderr)
+        raise SystemExit(130) from None
     if dest is not None:
         _print_summary(dest)
 
@@ -107,6 +111,9 @@ def _ls(args: list[str]) -> None:
     width = max(32, *(len(d["name"]) + 1 + len(d["id"]) for d in rows))
     print(f"{'name@id':<{width}} {'created':<26} {'scenes':>6} {'trajs':>7} {'eval':>6} {'MB':>8}")
     for d in rows:
+        if d.get("damaged"):
+            print(f"{d['name'] + '@' + d['id']:<{width}} DAMAGED: {d['damaged']}")
+            continue
         # Every file below the dataset folder: robot SDF sample sets keep theirs in sub-folders.
         mb = sum(f.stat().st_size for f in Path(d["path"]).rglob("*") if f.is_file()) / 1e6
         counts = d.get("counts", {})
@@ -142,7 +149,11 @@ def _verify(args: list[str]) -> None:
         for p in problems:
             print(f"  {p}", file=sys.stderr)
         raise SystemExit(1)
-    print(f"dataset {folder}: every file matches its sha256")
+    from samp.data.registry import read_manifest
+
+    hashed = read_manifest(folder, check_sizes=False).get("format_version", 1) >= 2
+    print(f"dataset {folder}: every file matches its sha256, and the scene files hold what the manifest says"
+          + (" (its own hash matches too)" if hashed else " (format version 1: the manifest carries no hash of its own)"))
 
 
 def _inspect(args: list[str]) -> None:

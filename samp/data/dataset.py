@@ -17,11 +17,12 @@ import numpy as np
 import torch
 
 from samp.data.mcap_io import SceneRecord, read_scene_file, write_scene_file
-from samp.data.registry import DatasetError, datasets_root, finalize_dataset, read_manifest, resolve_ref
+from samp.data.registry import (DatasetError, datasets_root, file_problems, finalize_dataset, read_manifest,
+                                recreate_hint, resolve_ref)
 from samp.names import SPLIT_ALIASES, SPLITS
 from samp.scene import Scene
 
-__all__ = ["Dataset", "canonical_split", "open_dataset", "write_dataset"]
+__all__ = ["Dataset", "canonical_split", "open_dataset", "scene_count_problems", "write_dataset"]
 
 
 def canonical_split(split: str) -> str:
@@ -126,20 +127,58 @@ def _eval_problems(scene: int, split: str, info: dict, record: SceneRecord) -> l
     return out
 
 
+def _counts(s: dict, r: SceneRecord) -> tuple[tuple, tuple]:
+    """(what the manifest says, what the file holds): scene index, episodes, trajectories, evaluation
+    problems and solved ones."""
+    held = (r.scene_index, len(r.episodes), len(r.trajectories), len(r.eval_episodes), len(r.eval_trajectories))
+    said = (s.get("scene_index"), s.get("episodes"), s.get("trajectories"), s.get("eval_problems", 0),
+            s.get("eval_solved", 0))
+    return said, held
+
+
+def _count_problem(path: Path, said: tuple, held: tuple) -> str:
+    return (f"{path}: the manifest says (scene index, episodes, trajectories, evaluation problems, solved ones) "
+            f"{said}, the file holds {held}")
+
+
+def scene_count_problems(path: Path, manifest: dict, records: list[SceneRecord] | None = None) -> list[str]:
+    """One line per scene file that is unreadable or does not hold what the manifest says it does."""
+    problems = []
+    for i, s in enumerate(manifest["scenes"]):
+        try:
+            r = records[i] if records is not None else read_scene_file(path / s["file"], resolutions=[])
+        except ValueError as err:
+            problems.append(str(err))
+            continue
+        said, held = _counts(s, r)
+        if said != held:
+            problems.append(_count_problem(path / s["file"], said, held))
+    return problems
+
+
 def open_dataset(ref: str | Path, root: Path | None = None) -> Dataset:
-    """Open `name` (newest), `name@id` (a unique id prefix is enough) or a dataset folder."""
+    """Open `name` (newest), `name@id` (a unique id prefix is enough) or a dataset folder.
+
+    Refuses (DatasetError) whatever `python -m samp.data verify` refuses: a manifest changed after
+    writing, a file entry outside the folder, a file whose sha256 differs, an unreadable scene file (MCAP
+    CRCs are checked) or one that does not hold what the manifest says; the message names the file,
+    expected and actual, and how to restore or re-create the dataset."""
     path = resolve_ref(ref, root)
     manifest = read_manifest(path)
     if "scenes" not in manifest:
         raise DatasetError(f"{path} is a {manifest.get('kind', 'different kind of')} dataset, not expert trajectories")
-    records = [read_scene_file(path / s["file"], resolutions=[]) for s in manifest["scenes"]]
-    for s, r in zip(manifest["scenes"], records):
-        held = (r.scene_index, len(r.episodes), len(r.trajectories), len(r.eval_episodes), len(r.eval_trajectories))
-        said = (s["scene_index"], s["episodes"], s["trajectories"], s.get("eval_problems", 0), s.get("eval_solved", 0))
-        if held != said:
-            raise DatasetError(f"{path / s['file']} does not hold what the manifest says (scene, episodes, "
-                               f"trajectories, evaluation problems, solved ones: expected {said}, found {held}); run "
-                               "`python -m samp.data verify` on it")
+    problems = file_problems(path, manifest)
+    if problems:
+        raise DatasetError(f"dataset {path} fails verification: {'; '.join(problems[:3])}"
+                           f"{f' (and {len(problems) - 3} more)' if len(problems) > 3 else ''}; "
+                           f"{recreate_hint(path, manifest)}")
+    try:
+        records = [read_scene_file(path / s["file"], resolutions=[]) for s in manifest["scenes"]]
+    except ValueError as err:
+        raise DatasetError(f"{err}; {recreate_hint(path, manifest)}") from None
+    problems = scene_count_problems(path, manifest, records)
+    if problems:
+        raise DatasetError(f"dataset {path} fails verification: {problems[0]}; {recreate_hint(path, manifest)}")
     return Dataset(path, manifest, records)
 
 
@@ -172,7 +211,9 @@ def write_dataset(ds: Dataset, name: str | None = None, root: Path | None = None
     from samp.data.generation import build_manifest
     from samp.provenance import code_version, package_versions
 
-    name, root = name or ds.name, (Path(root) if root else datasets_root())
+    from samp.paths import check_name
+
+    name, root = check_name(name or ds.name, "dataset name"), (Path(root) if root else datasets_root())
     tmp = root / name / f".tmp-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir(parents=True)
     try:

@@ -23,20 +23,24 @@ import json
 import os
 import queue
 import shutil
+import signal
+import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from multiprocessing import get_context
+from multiprocessing.managers import SyncManager
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from samp.data.mcap_io import SceneRecord, write_scene_file
-from samp.data.registry import FORMAT_VERSION, datasets_root, finalize_dataset
+from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
 from samp.names import SPLIT_ALIASES, SPLITS
 
-__all__ = ["GenerationError", "generate", "merge", "work_dir"]
+__all__ = ["GenerationError", "GenerationInterrupted", "generate", "merge", "work_dir"]
 
 TIMING_KEYS = ("planning_time", "solve_time", "simplify_time")  # wall clock: manifest only
 EVAL_PREFIX = "eval_"  # the evaluation problems' times in a sidecar: eval_planning_time, ...
@@ -51,7 +55,12 @@ class GenerationError(ValueError):
 
 
 class MergeBusy(GenerationError):
-    """Another process holds the merge lock of this work folder."""
+    """Another process holds the merge lock of this work folder (kept for callers; `merge` now waits)."""
+
+
+class GenerationInterrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) during generation: scheduling stopped, the workers were ended, finished scenes kept.
+    Its message is the one line to print."""
 
 
 def work_dir(spec: DatasetSpec, root: Path | str | None = None) -> Path:
@@ -60,7 +69,7 @@ def work_dir(spec: DatasetSpec, root: Path | str | None = None) -> Path:
 
 def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str) -> dict:
     """The `samp.dataset` metadata record of a scene file: deterministic, no times or versions."""
-    return {"format_version": FORMAT_VERSION, "dataset": spec.name, "config_hash": spec.config_hash(),
+    return {"format_version": SCENE_FILE_VERSION, "dataset": spec.name, "config_hash": spec.config_hash(),
             "robot": spec.robot, "robot_asset_hash": asset_hash, "scene_index": job.index, "split": job.split,
             "generator": job.generator, "scene_namespace": spec.namespace, "scene_seed": job.seed}
 
@@ -70,8 +79,23 @@ _ROBOTS: dict[str, object] = {}  # per process: robots are loaded once
 _TICKS = None  # per worker process: queue of finished-problem ticks for the progress bar
 
 
-def _init_worker(ticks) -> None:
+def _die_with_parent(parent: int) -> None:
+    """In a worker (or the manager) process: die when the generating process dies, even by SIGKILL, and
+    leave Ctrl-C to it (a terminal sends SIGINT to the whole group; the parent ends the workers itself)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        PR_SET_PDEATHSIG = 1
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # the parent died before the line above: nobody is left to serve
+        os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _init_worker(ticks, parent: int | None = None) -> None:
     global _TICKS
+    if parent is not None:
+        _die_with_parent(parent)
     _TICKS = ticks
     torch.set_num_threads(1)
 
@@ -242,6 +266,11 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
                 run_scene(spec_dict, job, str(work), tick=lambda: bar.update(1))
         else:
             _run_pool(spec_dict, todo, work, min(workers, len(todo)), bar)
+    except KeyboardInterrupt:
+        done = sum((work / j.file).is_file() for j in jobs)
+        raise GenerationInterrupted(
+            f"{label}: interrupted; {done} of {len(jobs)} scenes are finished and kept in {work}; run the same "
+            "command again to resume") from None
     finally:
         bar.close()
     missing = [j for j in spec.scene_jobs() if not (work / j.file).is_file()]
@@ -249,29 +278,42 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
         print(f"{label}: done; {len(missing)} scenes of other shards are not finished yet "
               f"(run `python -m samp.data merge +dataset={spec.name}` when they are)")
         return None
-    try:
-        return merge(spec, root)
-    except MergeBusy:  # a shard finishing at the same time is merging
-        print(f"{label}: done; another process is merging the dataset")
-        return None
+    return merge(spec, root)  # a shard finishing at the same time may be merging: merge waits for it
 
 
 def _run_pool(spec_dict: dict, todo: list[SceneJob], work: Path, workers: int, bar) -> None:
+    """Scenes in `workers` spawned processes, which die with this one (even by SIGKILL). On any error or
+    Ctrl-C, nothing more is scheduled and the workers are ended at once; finished scene files stay."""
     ctx = get_context("spawn")  # a clean interpreter per worker: no inherited torch or pybullet state
-    ticks = ctx.Manager().Queue()
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(ticks,)) as pool:
+    manager = SyncManager(ctx=ctx)
+    manager.start(_die_with_parent, (os.getpid(),))
+    ticks = manager.Queue()
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(ticks, os.getpid()))
+    try:
         pending = {pool.submit(run_scene, spec_dict, job, str(work)) for job in todo}
-        try:
-            while pending:
-                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                _drain(ticks, bar)
-                for future in done:
-                    future.result()  # a failed scene stops the run; finished scenes stay on disk
-        except BaseException:
-            for future in pending:
-                future.cancel()
-            raise
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(ticks, bar)
+            for future in done:
+                future.result()  # a failed scene stops the run; finished scenes stay on disk
         _drain(ticks, bar)
+    except BaseException:
+        _end_workers(pool)
+        raise
+    else:
+        pool.shutdown(wait=True)
+    finally:
+        manager.shutdown()
+
+
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    """Cancel what is queued and end the running workers now (a scene half planned is lost, as after a kill)."""
+    processes = list(getattr(pool, "_processes", {}).values())  # the executor keeps its workers here
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        p.kill()
+    for p in processes:
+        p.join(timeout=30)
 
 
 def _drain(ticks, bar) -> None:
@@ -284,13 +326,59 @@ def _drain(ticks, bar) -> None:
 
 # ------------------------------------------------------------------------------------------ merge
 def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
-    """Join the finished scene files of every shard into one dataset; names the missing scenes if any."""
-    from samp.provenance import code_version, package_versions
-
+    """Join the finished scene files of every shard into one dataset; names the missing scenes if any.
+    Waits while another process merges the same spec, then returns the dataset it made."""
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
     root = Path(root) if root else datasets_root()
     work = work_dir(spec, root)
     jobs = spec.scene_jobs()
+    if not work.is_dir():  # merged already (by a shard finishing at the same time), or never generated
+        return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)  # the latter names what is missing
+    with _merge_lock(work, spec.name):
+        if not work.is_dir():  # the process we waited for merged it
+            return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)
+        return _merge_locked(spec, root, work, jobs)
+
+
+@contextmanager
+def _merge_lock(work: Path, name: str):
+    """An exclusive lock on `work/merge.lock` (fcntl.flock), held for the block. The kernel releases it when
+    its holder dies, however it dies, so a lock file left by a killed merge is simply taken over; a live
+    holder is waited for."""
+    import fcntl
+    import platform
+
+    lock = work / "merge.lock"
+    fd = os.open(lock, os.O_CREAT | os.O_RDWR)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
+            print(f"{name}: {owner} is merging {work}; waiting for it to finish", flush=True)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"process {os.getpid()} on {platform.node()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
+    """The dataset this spec was merged into (its work folder is gone), or None."""
+    from samp.data.registry import list_datasets
+
+    made = [d for d in list_datasets(root) if d["name"] == spec.name and d.get("config_hash") == spec.config_hash()]
+    if not made:
+        return None
+    newest = max(made, key=lambda d: d["created"])
+    print(f"{spec.name}: already merged into {newest['name']}@{newest['id']}")
+    return Path(newest["path"])
+
+
+def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob]) -> Path:
+    from samp.provenance import code_version, package_versions
+
     missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
     done = _already_there(spec, root, work) if missing else None
     if done is not None:  # merged already (generate merges when the last scene is done)
@@ -299,12 +387,6 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
         raise GenerationError(f"cannot merge {spec.name!r}: {len(missing)} of {len(jobs)} scenes are not generated "
                               f"yet (indices {missing[:20]}{' ...' if len(missing) > 20 else ''}) in {work}; run "
                               f"`python -m samp.data generate +dataset={spec.name}` (or the missing shards) first")
-    lock = work / "merge.lock"
-    try:
-        os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
-    except FileExistsError:
-        raise MergeBusy(f"{lock} exists: another process is merging {spec.name!r}. If none is (it was killed), "
-                        "delete the lock file and merge again") from None
     sidecars = [json.loads((work / (j.file + SIDECAR)).read_text()) for j in jobs]
     tmp = root / spec.name / f".tmp-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir(parents=True)
@@ -317,7 +399,6 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
         dest = finalize_dataset(tmp, spec.name, manifest, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
-        lock.unlink(missing_ok=True)
         raise
     shutil.rmtree(work, ignore_errors=True)
     work_parent = work.parent

@@ -200,7 +200,7 @@ def read_scene_file(path: Path, resolutions: list[int] | None = None) -> SceneRe
     holding only other grids are not even decompressed)."""
     try:
         with open(path, "rb") as f:
-            reader = make_reader(f)
+            reader = make_reader(f, validate_crcs=True)  # a flipped byte in a chunk is an error, not data
             summary = reader.get_summary()
             if summary is None:
                 raise EOFError("the file has no summary section")
@@ -227,9 +227,10 @@ def read_scene_file(path: Path, resolutions: list[int] | None = None) -> SceneRe
                 else:
                     joints = JointStates.FromString(message.data).joints
                     waypoints[topic].setdefault(message.log_time // STEP_NS, []).append([j.position for j in joints])
-    except (McapError, EOFError, ValueError, KeyError, struct.error, DecodeError) as err:
+    except (McapError, EOFError, ValueError, KeyError, struct.error, DecodeError, UnicodeDecodeError) as err:
         raise ValueError(f"{path} is not a readable samp scene file ({type(err).__name__}: {err}); it may be "
-                         "truncated: run `python -m samp.data verify` on its dataset") from None
+                         "truncated or changed: run `python -m samp.data verify` on its dataset, and restore or generate the "
+                         "dataset again") from None
     if record is None:
         raise ValueError(f"{path} has no /scene/spec record; it is not a samp scene file")
     record.metadata, record.resolutions, record.grids = metadata, sorted(grid_topics.values()), grids

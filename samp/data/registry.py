@@ -4,6 +4,12 @@ A dataset lives in `<root>/<name>/<id>/` (root: `datasets/` or `$SAMP_DATASETS_D
 plus `manifest.json`. `id` is the first 12 hex digits of sha256 over the sorted (relative path, file
 sha256) pairs of its data files. A dataset is assembled in a temporary folder and renamed into place
 when complete; a finished dataset folder is never modified.
+
+The manifest itself is covered by `manifest_sha256` (format version 2): sha256 of its canonical JSON
+without that key, so an edited count, split or file entry is caught by `verify` and refused by every
+reader. Manifests of format version 1 carry no such hash and stay readable: their counts are checked
+against the scene files when the dataset is opened or verified. Scene files are unchanged between the
+two versions (their metadata still says version 1), so a dataset id does not depend on the version.
 """
 
 from __future__ import annotations
@@ -15,14 +21,17 @@ import shutil
 from datetime import datetime, timezone
 from pathlib import Path
 
-from samp.paths import REPO_ROOT
-from samp.paths import file_sha256
+from samp.paths import REPO_ROOT, check_name, file_sha256, inside
 
-__all__ = ["FORMAT_VERSION", "MANIFEST", "DatasetError", "content_id", "datasets_root", "finalize_dataset",
-           "list_datasets", "read_manifest", "resolve_ref", "verify_dataset"]
+__all__ = ["FORMAT_VERSION", "MANIFEST", "READABLE_VERSIONS", "SCENE_FILE_VERSION", "DatasetError", "content_id",
+           "datasets_root", "file_problems", "finalize_dataset", "list_datasets", "manifest_hash", "read_manifest",
+           "recreate_hint", "resolve_ref", "verify_dataset"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # of the manifest; 2 added manifest_sha256
+READABLE_VERSIONS = (1, 2)
+SCENE_FILE_VERSION = 1  # the `format_version` inside each scene file's metadata (unchanged, so ids are too)
 MANIFEST = "manifest.json"
+MANIFEST_HASH = "manifest_sha256"
 ID_LENGTH = 12
 
 
@@ -42,6 +51,21 @@ def content_id(files: dict[str, str]) -> str:
     return h.hexdigest()[:ID_LENGTH]
 
 
+def manifest_hash(manifest: dict) -> str:
+    """sha256 of the manifest's canonical JSON (sorted keys, no spaces), its own hash left out."""
+    body = {k: v for k, v in manifest.items() if k != MANIFEST_HASH}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def recreate_hint(folder: Path, manifest: dict | None = None, how: str | None = None) -> str:
+    """What to do about a damaged dataset: restore it, or make it again (`how`; default: generate it from
+    its spec)."""
+    name = (manifest or {}).get("name") or folder.parent.name
+    how = how or (f"generate it again with `python -m samp.data generate dataset={name}` (the spec it was made "
+                  f"from is under 'config' in its {MANIFEST})")
+    return f"restore {folder} from a copy, or delete it and {how}"
+
+
 def _data_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.rglob("*") if p.is_file() and p.name != MANIFEST)
 
@@ -52,6 +76,7 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
     If a dataset with the same id exists, its content is identical by construction: `tmp` is removed
     and the existing folder returned, so nothing is overwritten.
     """
+    check_name(name, "dataset name")
     root = Path(root) if root else datasets_root()
     files = {p.relative_to(tmp).as_posix(): {"size": p.stat().st_size, "sha256": file_sha256(p)}
              for p in _data_files(tmp)}
@@ -60,6 +85,7 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
     ident = content_id({rel: f["sha256"] for rel, f in files.items()})
     full = {"format_version": FORMAT_VERSION, "name": name, "id": ident,
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), **manifest, "files": files}
+    full[MANIFEST_HASH] = manifest_hash(full)
     (tmp / MANIFEST).write_text(json.dumps(full, indent=2, sort_keys=True))
     dest = root / name / ident
     dest.parent.mkdir(parents=True, exist_ok=True)
@@ -75,26 +101,45 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
 
 
 def read_manifest(folder: Path, check_sizes: bool = True) -> dict:
-    """The manifest of a dataset folder, after checking its format version and (cheaply) file sizes."""
+    """The manifest of a dataset folder, after checking its format version, its own hash (version 2),
+    that every file it names lies inside the folder, and (cheaply) the files' sizes. A DatasetError names
+    the file, what was expected and what was found, and what to do."""
+    folder = Path(folder)
     path = folder / MANIFEST
     if not path.is_file():
         raise DatasetError(f"{folder} is not a dataset: it has no {MANIFEST}")
     try:
         manifest = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise DatasetError(f"{path} is not valid JSON ({err})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise DatasetError(f"{path} is not valid JSON ({err}); {recreate_hint(folder)}") from None
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"{path} holds a JSON {type(manifest).__name__}, not a manifest (an object); "
+                           f"{recreate_hint(folder)}")
     version = manifest.get("format_version")
-    if version != FORMAT_VERSION:
-        raise DatasetError(f"{path} has format version {version!r}; this samp reads version {FORMAT_VERSION}. "
+    if version not in READABLE_VERSIONS:
+        raise DatasetError(f"{path} has format version {version!r}; this samp reads versions {READABLE_VERSIONS}. "
                            "Regenerate the dataset or use a matching samp version.")
+    if version >= 2:
+        said, actual = manifest.get(MANIFEST_HASH), manifest_hash(manifest)
+        if said != actual:
+            raise DatasetError(f"{path} was changed after the dataset was written: {MANIFEST_HASH} expected "
+                               f"{said}, actual {actual} (an edited count, split or file entry); "
+                               f"{recreate_hint(folder, manifest)}")
+    if not isinstance(manifest.get("files"), dict):
+        raise DatasetError(f"{path} has no 'files' table; {recreate_hint(folder, manifest)}")
+    try:
+        for rel in [*manifest["files"], *(s.get("file", "") for s in manifest.get("scenes", []))]:
+            inside(folder, rel, f"{path}: file entry")
+    except ValueError as err:
+        raise DatasetError(f"{err}; {recreate_hint(folder, manifest)}") from None
     if check_sizes:
         for rel, info in manifest["files"].items():
             f = folder / rel
             if not f.is_file():
-                raise DatasetError(f"dataset {folder}: file {rel} is missing")
+                raise DatasetError(f"dataset {folder}: file {rel} is missing; {recreate_hint(folder, manifest)}")
             if f.stat().st_size != info["size"]:
                 raise DatasetError(f"dataset {folder}: file {rel} has {f.stat().st_size} bytes, the manifest says "
-                                   f"{info['size']}; it is truncated or changed (run `python -m samp.data verify`)")
+                                   f"{info['size']}; it is truncated or changed. {recreate_hint(folder, manifest)}")
     return manifest
 
 
@@ -103,11 +148,21 @@ def list_datasets(root: Path | None = None) -> list[dict]:
     root = Path(root) if root else datasets_root()
     out = []
     for manifest_path in sorted(root.glob(f"*/*/{MANIFEST}")):
-        try:
-            m = read_manifest(manifest_path.parent, check_sizes=False)
-        except DatasetError:
+        folder = manifest_path.parent
+        if folder.name.startswith(".") or folder.parent.name.startswith("."):  # .tmp-* of an unfinished write
             continue
-        out.append({**{k: v for k, v in m.items() if k != "files"}, "path": str(manifest_path.parent)})
+        try:
+            m = read_manifest(folder, check_sizes=False)
+        except DatasetError as err:  # listed, marked damaged: `open` and `verify` say what is wrong
+            try:
+                raw = json.loads(manifest_path.read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError):
+                raw = {}
+            raw = raw if isinstance(raw, dict) else {}
+            out.append({"name": folder.parent.name, "id": folder.name, "created": str(raw.get("created", "")),
+                        "path": str(folder), "damaged": str(err)})
+            continue
+        out.append({**{k: v for k, v in m.items() if k != "files"}, "path": str(folder)})
     return out
 
 
@@ -128,9 +183,9 @@ def resolve_ref(ref: str | Path, root: Path | None = None) -> Path:
     return Path(max(candidates, key=lambda d: d["created"])["path"])
 
 
-def verify_dataset(folder: Path) -> list[str]:
-    """Re-hash every file; returns one line per problem (empty when the dataset is intact)."""
-    manifest = read_manifest(folder, check_sizes=False)
+def file_problems(folder: Path, manifest: dict) -> list[str]:
+    """Re-hash every file the manifest lists: one line per file (its path relative to `folder`) that is
+    missing, differs (expected vs actual sha256) or is not listed, and one if the id does not match."""
     problems = []
     for rel, info in sorted(manifest["files"].items()):
         f = folder / rel
@@ -142,6 +197,23 @@ def verify_dataset(folder: Path) -> list[str]:
             problems.append(f"{rel}: sha256 expected {info['sha256']}, actual {actual}")
     extra = {p.relative_to(folder).as_posix() for p in _data_files(folder)} - set(manifest["files"])
     problems += [f"{rel}: not in the manifest" for rel in sorted(extra)]
-    if not problems and content_id({r: i["sha256"] for r, i in manifest["files"].items()}) != manifest["id"]:
-        problems.append(f"manifest id {manifest['id']} does not match its file list")
+    ident = content_id({r: i["sha256"] for r, i in manifest["files"].items()})
+    if not problems and ident != manifest.get("id"):
+        problems.append(f"{MANIFEST}: id expected {ident} (from its file list), the manifest says {manifest.get('id')}")
+    return problems
+
+
+def verify_dataset(folder: Path) -> list[str]:
+    """Everything `open_dataset` checks, in full: the manifest (format, its own hash, file entries inside
+    the folder), every file's sha256, and what each scene file holds against the manifest's counts.
+    Returns one line per problem (empty when the dataset is intact)."""
+    try:
+        manifest = read_manifest(folder, check_sizes=False)
+    except DatasetError as err:
+        return [str(err)]
+    problems = file_problems(Path(folder), manifest)
+    if not problems and "scenes" in manifest:
+        from samp.data.dataset import scene_count_problems  # decodes the scene files (no grids)
+
+        problems = scene_count_problems(Path(folder), manifest)
     return problems

@@ -163,8 +163,8 @@ def _check(spec: DatasetSpec) -> None:
         if not ok:
             raise ValueError(f"dataset spec {spec.name!r}: {what}")
 
-    require(spec.name not in ("", "???") and "/" not in spec.name and "@" not in spec.name,
-            f"name must be a plain folder name (no '/' or '@'), got {spec.name!r}")
+    require(spec.name not in ("", "???") and "@" not in spec.name and _plain(spec.name),
+            f"name must be a plain folder name (no '/', '@', '.' or '..', not starting with '.'), got {spec.name!r}")
     require(spec.robot in available_robots(), f"unknown robot {spec.robot!r}; available: {available_robots()}")
     require(spec.scene_namespace is None or spec.scene_namespace.strip() != "",
             f"scene_namespace must be a non-empty string or null (the spec's name), got {spec.scene_namespace!r}")
@@ -188,3 +188,13 @@ def _check(spec: DatasetSpec) -> None:
             f"resolutions must list anchor counts per axis in [2, 512], got {spec.resolutions}")
     require(len(set(spec.resolutions)) == len(spec.resolutions), f"resolutions has duplicates: {spec.resolutions}")
     spec.expert_config()  # raises with the expert config's own message
+
+
+def _plain(name) -> bool:
+    from samp.paths import check_name
+
+    try:
+        check_name(name, "dataset name")
+    except ValueError:
+        return False
+    return True

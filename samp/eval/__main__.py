@@ -83,18 +83,28 @@ def _open_dataset(cfg, run):
 
 def _planner(cfg, run, manifest: dict):
     from samp.eval.loading import load_planner
+    from samp.device import resolve_device
     from samp.robot import load_robot
 
     if run is not None:
         from samp.eval.loading import check_policy_robot
 
-        policy = load_planner(run.path)
+        options = {} if cfg.robot_sdf_tables is None else {"robot_sdf_tables": cfg.robot_sdf_tables}
+        if cfg.trust_checkpoint:
+            options["trust_checkpoint"] = True
+        policy = load_planner(run.path, device=cfg.device, **options)
         check_policy_robot(policy, manifest)
-        if cfg.n_e is not None:
+        own = getattr(policy, "n_e", None)
+        if cfg.n_e is not None and own is not None and cfg.n_e != own:
+            raise ValueError(f"n_e={cfg.n_e} contradicts the policy of {run.path}: it was trained on grids at n_e = "
+                             f"{own} and reads no other; leave n_e out (or give n_e={own}), or train a policy at "
+                             f"n_e={cfg.n_e}")
+        if cfg.n_e is not None and own is None:  # a policy without grids of its own (the engine's choice)
             policy.n_e = cfg.n_e
         return policy
     robot = load_robot(manifest["robot"]["name"])
     if cfg.planner == "straight":
+        robot = robot.to(resolve_device(cfg.device))
         return load_planner("straight", robot=robot, max_step=cfg.straight_max_step, n_e=cfg.n_e)
     from samp.eval.planners import EXPERT_VARIANTS
 

@@ -52,7 +52,10 @@ class EvalConfig:
     seed: int = 0
     out: str | None = None  # output folder; default RUN/eval, or runs/eval/PLANNER_DATASET without a run
     overwrite: bool = False  # replace the files of an earlier evaluation in `out`
-    n_e: int | None = None  # grid resolution handed to the policy (null: the policy's own)
+    n_e: int | None = None  # grid resolution: a run's policy is refused at another n_e than its own (null: its own)
+    trust_checkpoint: bool = False  # unpickle the run's checkpoint fully (it can run code): only files you trust
+    device: str = "auto"  # where the policy runs: auto (CUDA when there is a GPU) | cpu | cuda[:N]
+    robot_sdf_tables: int | None = None  # samp policies: robot SDF tables (0: exact; null: the policy's own)
     grid_source: str = "exact"  # exact (the dataset's grids) | reconstructed (from simulated depth cameras)
     camera: str = "default"  # grid_source=reconstructed: camera set, conf/camera/NAME.yaml or a YAML path
     unknown: str = "free"  # grid_source=reconstructed: what space no camera saw becomes: free | occupied
@@ -139,6 +142,10 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
     _require(cfg.record_rollouts >= 0 and cfg.record_points >= 1, "record_rollouts / record_points", ">= 0 / >= 1",
              (cfg.record_rollouts, cfg.record_points))
     _require(cfg.n_e is None or cfg.n_e >= 2, "n_e", "null or an integer >= 2", cfg.n_e)
+    _require(cfg.device == "auto" or cfg.device == "cpu" or cfg.device.split(":")[0] == "cuda", "device",
+             "auto | cpu | cuda[:N]", cfg.device)
+    _require(cfg.robot_sdf_tables is None or cfg.robot_sdf_tables == 0 or cfg.robot_sdf_tables >= 2,
+             "robot_sdf_tables", "null, 0 (exact) or an integer >= 2", cfg.robot_sdf_tables)
     _require(cfg.grid_source in ("exact", "reconstructed"), "grid_source", "exact | reconstructed", cfg.grid_source)
     _require(cfg.unknown in ("occupied", "free"), "unknown", "occupied | free", cfg.unknown)
     cfg.rollout()  # validates the rollout keys

@@ -16,8 +16,9 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from samp.eval.names import CHECKPOINT_DIR, CHECKPOINT_PREFERENCE, RUN_JSON
+from samp.eval.names import CHECKPOINT_DIR, RUN_JSON
 from samp.eval.planners import ExpertTrajectoryPlanner, StraightLinePolicy
+from samp.paths import find_checkpoint  # re-exported
 
 __all__ = ["RunInfo", "check_policy_robot", "check_robot", "find_checkpoint", "load_planner", "read_run"]
 
@@ -60,19 +61,6 @@ def read_run(run_dir: str | Path) -> RunInfo:
     return RunInfo(path, ds, robot, asset, raw)
 
 
-def find_checkpoint(run_dir: str | Path) -> Path:
-    """`checkpoints/best.ckpt`, else `checkpoints/last.ckpt`; FileNotFoundError naming what is there."""
-    folder = Path(run_dir) / CHECKPOINT_DIR
-    for name in CHECKPOINT_PREFERENCE:
-        if (folder / name).is_file():
-            return folder / name
-    present = sorted(p.name for p in folder.glob("*")) if folder.is_dir() else []
-    what = f"it holds {present}" if present else ("it is empty" if folder.is_dir() else "the folder does not exist")
-    raise FileNotFoundError(f"no checkpoint to evaluate in {folder}: expected {' or '.join(CHECKPOINT_PREFERENCE)} "
-                            f"({what}). Train the run to at least one checkpoint, or evaluate the expert with "
-                            "planner=expert dataset=REF")
-
-
 def check_robot(run: RunInfo, manifest: dict) -> None:
     """Refuse a run trained for another robot (name or asset hash) than the dataset's."""
     robot = manifest.get("robot", {})
@@ -108,13 +96,15 @@ def _robot(robot):
     return load_robot(robot) if isinstance(robot, (str, Path)) else robot
 
 
-def load_planner(source: str | Path, *, robot=None, **options):
+def load_planner(source: str | Path, *, robot=None, device: str = "cpu", **options):
     """A planner to `evaluate`.
 
     Args:
         source: a run folder (its policy checkpoint), "expert" (`ExpertTrajectoryPlanner`: options mode, config,
             seed) or "straight" (`StraightLinePolicy`: options max_step, n_e; needs `robot`).
         robot: a robot name or `Robot`, for "straight" and for the expert in mode "plan".
+        device: where a trained policy runs: auto | cpu | cuda[:N] (the expert always plans on the CPU;
+            the straight line runs where its `robot` is).
     """
     if str(source) == "expert":
         return ExpertTrajectoryPlanner(robot=None if robot is None else _robot(robot), **options)
@@ -130,7 +120,7 @@ def load_planner(source: str | Path, *, robot=None, **options):
         raise ValueError(f"cannot load {checkpoint}: the policy package (samp.policy with load_policy) is not "
                          "available in this version of samp. Evaluate the built-in planners instead: planner=expert "
                          "or planner=straight") from None
-    policy = load_policy(checkpoint, run.path, **options)
+    policy = load_policy(checkpoint, run.path, device=device, **options)
     name = getattr(policy.robot, "name", None)
     if run.robot and name and name != run.robot:
         raise ValueError(f"{checkpoint} holds a policy for robot {name!r} but {run.path / RUN_JSON} says {run.robot!r}")

@@ -12,6 +12,7 @@ organised (H, W, 3) cloud; non-finite points (a sensor's invalid pixels) are dro
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -89,9 +90,11 @@ def _ply_vertices(f, path: Path, fmt: str, elements) -> np.ndarray:
 
 
 def load_point_cloud(path: str | Path) -> np.ndarray:
-    """Read a `.ply` or `.npy` point cloud -> (N, 3) float64, non-finite points dropped.
+    """Read a `.ply` or `.npy` point cloud -> (N, 3) float64, non-finite points dropped (with a warning
+    giving their share: invalid pixels of an organised cloud are normal, a mostly-NaN cloud is not).
 
-    Raises FileNotFoundError for a missing file and ValueError (saying what was wrong) for a bad one.
+    Raises FileNotFoundError for a missing file and ValueError (saying what was wrong) for a bad one, one
+    without points, or one whose points are all NaN or infinite.
     """
     path = Path(path).expanduser()
     if not path.is_file():
@@ -112,7 +115,17 @@ def load_point_cloud(path: str | Path) -> np.ndarray:
         points = arr.reshape(-1, 3).astype(np.float64)
     else:
         raise ValueError(f"{path}: unknown point cloud format {path.suffix!r}; expected .ply or .npy")
-    return points[np.isfinite(points).all(axis=1)]
+    if len(points) == 0:
+        raise ValueError(f"{path} holds no points: a reconstruction from it would be an empty world")
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.any():
+        raise ValueError(f"{path}: all {len(points)} points are NaN or infinite; the cloud holds no measurement")
+    if not finite.all():
+
+        bad = int((~finite).sum())
+        warnings.warn(f"{path}: {bad} of {len(points)} points ({bad / len(points):.1%}) are NaN or infinite and are "
+                      "dropped", stacklevel=2)
+    return points[finite]
 
 
 def save_point_cloud(path: str | Path, points, ascii: bool = False) -> Path:

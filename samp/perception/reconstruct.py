@@ -34,6 +34,7 @@ and the error is at most about half a voxel plus the voxelisation of the surface
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -44,13 +45,20 @@ from scipy.ndimage import distance_transform_edt, minimum_filter
 from samp.scene.model import check_bounds
 from samp.sim.scan import DepthView, Scan
 
-__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "UNKNOWN_POLICIES", "Lattice", "Reconstruction", "observe",
+__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "UNKNOWN_POLICIES", "Lattice", "Reconstruction", "checked_scans", "observe",
            "reconstruct_grid", "reconstruction_error", "signed_distance"]
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2  # voxel states (int8)
 UNKNOWN_POLICIES = ("occupied", "free")
 NEAR = 0.05  # metres: the reconstruction error is reported over anchors with |exact distance| below this
 RAY_CHUNK = 4_000_000  # ray samples handled at once (bounds the memory of carving)
+# Sanity of the clouds (issue 21): below MIN_INSIDE points, or below MIN_INSIDE_SHARE of them, inside the padded
+# workspace, the clouds cannot describe it (wrong units or frame): an error. Above WARN_OUTSIDE_SHARE outside,
+# a warning (bounds tighter than the scene are legitimate; a shifted cloud is not). On the generated scenes
+# seen by conf/camera/default all points lie inside; shifted 1 m along x, 29-42 % of them do.
+MIN_INSIDE, MIN_INSIDE_SHARE, WARN_OUTSIDE_SHARE = 10, 0.01, 0.5
+WARN_ON_ROBOT_SHARE = 0.05  # of the points inside, on the robot's own (known free) volume: another frame?
+MILLIMETRES = 20.0  # metres: a cloud wider than this is most likely in millimetres
 
 
 @dataclass(frozen=True)
@@ -212,6 +220,44 @@ def signed_distance(occupied: np.ndarray, spacing) -> np.ndarray:
     return np.where(occupied, -(inside - spacing.min()), outside)
 
 
+def _share(part: int, whole: int) -> str:
+    return f"{part} of {whole} points ({part / whole:.1%})"
+
+
+def checked_scans(scans: list[Scan], lattice: Lattice, padding: float,
+                  known_free: Callable[[np.ndarray], np.ndarray] | None = None) -> list[Scan]:
+    """The scans, after checking that they can describe the workspace: no points, or (almost) none inside
+    the bounds + padding (millimetres, another frame) are errors; points dropped outside it and points on
+    the robot's own volume are warnings with their share. Without these checks such clouds silently
+    become "no obstacle anywhere". (A `Scan` holds finite points only; `load_point_cloud` drops the others
+    with a warning and refuses a cloud of nothing else.)"""
+    total = sum(len(s.hits) for s in scans)
+    if total == 0:
+        raise ValueError("the scans hold no points: a reconstruction from them would be an empty world (no obstacle "
+                         "anywhere). Check that the sensor returned data and the cloud file is the right one")
+    hits = np.concatenate([s.hits for s in scans])  # (N, 3) finite
+    _, inside = lattice.index(hits)
+    n_in, n = int(inside.sum()), len(hits)
+    extent = float(np.ptp(hits, axis=0).max())
+    where = (f"the points span {np.round(hits.min(0), 3).tolist()} to {np.round(hits.max(0), 3).tolist()} m, the "
+             f"workspace bounds are {[list(b) for b in lattice.bounds]} m (+ {padding} m padding)")
+    hint = (f"The cloud is {extent:.0f} units wide: if it is in millimetres, scale it by 0.001" if extent > MILLIMETRES
+            else "If the cloud is in another frame (the sensor's), give its sensor -> base transform "
+                 "(scan_from_file(..., transform=T)) or fix the extrinsics")
+    if n_in < max(MIN_INSIDE, MIN_INSIDE_SHARE * n):
+        raise ValueError(f"only {_share(n_in, n)} lie inside the workspace: {where}. {hint}")
+    if n - n_in > WARN_OUTSIDE_SHARE * n:
+        warnings.warn(f"{_share(n - n_in, n)} lie outside the workspace and are dropped: {where}. Expected when the "
+                      f"bounds are tighter than the scene. {hint}", stacklevel=3)
+    if known_free is not None:
+        on_robot = int(np.asarray(known_free(hits[inside]), dtype=bool).sum())
+        if on_robot > WARN_ON_ROBOT_SHARE * n_in:
+            warnings.warn(f"{_share(on_robot, n_in)} inside the workspace lie on the robot's own volume, which the "
+                          f"cameras cannot see as an obstacle: the cloud is probably shifted or in another frame "
+                          f"({where}). {hint}", stacklevel=3)
+    return scans
+
+
 @dataclass
 class Reconstruction:
     """A reconstructed anchor grid and what it was made from.
@@ -252,6 +298,7 @@ def reconstruct_grid(scans: Sequence[Scan], n_e: int, bounds, unknown: str = "fr
         raise ValueError("no scan has a sensor origin, so no space is observed free and unknown='occupied' would "
                          "fill the whole workspace; give the sensor position (origin=[x, y, z]) or use unknown='free'")
     lattice = Lattice.make(n_e, bounds, padding)
+    scans = checked_scans(scans, lattice, padding, known_free)
     state = observe(scans, lattice, known_free)
     occupied = state == OCCUPIED
     if unknown == "occupied":  # within the bounds only: the padding is there for measured surfaces

@@ -211,7 +211,16 @@ class PolicySystemBase(pl.LightningModule):
         if system.robot.asset_hash != record["robot_asset_hash"]:
             raise ValueError(f"the checkpoint was trained on robot assets {record['robot_asset_hash'][:12]}, but "
                              f"{system.robot.name!r} now loads {system.robot.asset_hash[:12]} (different URDF or meshes)")
-        system.load_state_dict(ckpt["state_dict"])
+        system.load_state_dict(_without_stale_robot_buffers(ckpt["state_dict"], system))
         if record.get("binding"):
             system.binding = DatasetBinding.from_meta(record["binding"])
         return system.eval()
+
+
+def _without_stale_robot_buffers(state: dict, system) -> dict:
+    """A checkpoint's state without the robot-model buffers this version no longer keeps (derived index
+    buffers that older versions saved, e.g. `robot._point_frames`); everything else must still match."""
+    own = system.state_dict()
+    robot_modules = tuple(f"{name}." for name, module in system.named_modules(remove_duplicate=False)
+                          if name and type(module).__name__ == "Robot")
+    return {k: v for k, v in state.items() if k in own or not k.startswith(robot_modules)}

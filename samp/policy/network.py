@@ -76,6 +76,8 @@ def sample_by_scene(volumes: torch.Tensor, scene_index: torch.Tensor, points: to
     Returns: (B, C, M).
     """
     B, M, _ = points.shape
+    if len(volumes) == 1:  # one scene (a rollout of one problem): no grouping needed
+        return sample_grid(volumes, points.reshape(1, B * M, 3), bounds).view(-1, B, M).transpose(0, 1)
     out = points.new_zeros(B, volumes.shape[1], M, dtype=volumes.dtype)
     for s in scene_index.unique().tolist():
         rows = (scene_index == s).nonzero()[:, 0]

@@ -15,7 +15,9 @@ from pathlib import Path
 
 import torch
 
+from samp.device import resolve_device
 from samp.names import CHECKPOINT_RECORD
+from samp.paths import find_checkpoint
 
 __all__ = ["load_policy", "load_system", "policy_kinds", "read_checkpoint", "register_policy"]
 
@@ -76,15 +78,25 @@ def _legacy_record(ckpt: dict) -> dict:
     return record
 
 
-def read_checkpoint(checkpoint: str | Path | dict, map_location="cpu") -> dict:
-    """A policy checkpoint as a dict with its `samp` record (older formats translated)."""
+def read_checkpoint(checkpoint: str | Path | dict, map_location="cpu", trust_checkpoint: bool | None = None) -> dict:
+    """A policy checkpoint (a file, a run folder or the loaded dict) as a dict with its `samp` record (older
+    formats translated).
+
+    A file is first compared with the sha256 its run recorded, then loaded without running code from it
+    (`samp.integrity.load_torch_file`); `trust_checkpoint=True` (or SAMP_TRUST_CHECKPOINTS=1) unpickles it
+    fully, for a file from someone you trust that needs more than tensors and plain values."""
+    from samp.integrity import check_recorded_hash, load_torch_file
+
     if isinstance(checkpoint, dict):
         ckpt = checkpoint
     else:
         path = Path(checkpoint)
+        if path.is_dir():
+            path = find_checkpoint(path)
         if not path.is_file():
             raise FileNotFoundError(f"no checkpoint at {path}")
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+        check_recorded_hash(path)
+        ckpt = load_torch_file(path, "policy checkpoint", trust=trust_checkpoint, map_location=map_location)
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise ValueError(f"{checkpoint if not isinstance(checkpoint, dict) else 'the object'} is not a Lightning "
                          "checkpoint (no state_dict)")
@@ -93,9 +105,9 @@ def read_checkpoint(checkpoint: str | Path | dict, map_location="cpu") -> dict:
     return ckpt
 
 
-def load_system(checkpoint: str | Path | dict, map_location="cpu"):
-    """The trained system a policy checkpoint holds, whatever its kind, in eval mode."""
-    ckpt = read_checkpoint(checkpoint, map_location)
+def load_system(checkpoint: str | Path | dict, map_location="cpu", trust_checkpoint: bool | None = None):
+    """The trained system a policy checkpoint (or a run folder's) holds, whatever its kind, in eval mode."""
+    ckpt = read_checkpoint(checkpoint, map_location, trust_checkpoint)
     kind = ckpt[CHECKPOINT_RECORD].get("kind")
     _discover()
     if kind not in _SYSTEMS:
@@ -103,7 +115,10 @@ def load_system(checkpoint: str | Path | dict, map_location="cpu"):
     return _SYSTEMS[kind].from_checkpoint(ckpt, map_location)
 
 
-def load_policy(checkpoint: str | Path | dict, run_dir: str | Path | None = None, **options):
-    """The planner of a policy checkpoint (a `StepPolicy`, or a `TrajectoryPlanner` for MPNet), with
-    `options` for its `planner(...)`. The run folder is not needed: a checkpoint is whole."""
-    return load_system(checkpoint).planner(**options)
+def load_policy(checkpoint: str | Path | dict, run_dir: str | Path | None = None, *,
+                device: str | torch.device | None = "cpu", trust_checkpoint: bool | None = None, **options):
+    """The planner of a policy checkpoint or run folder (a `StepPolicy` with `plan`, or a `TrajectoryPlanner`
+    for MPNet), on `device` (auto | cpu | cuda[:N]), with `options` for its `planner(...)`. The run folder
+    is not needed besides a checkpoint file: a checkpoint is whole. `trust_checkpoint`: see `read_checkpoint`."""
+    device = resolve_device(device)
+    return load_system(checkpoint, trust_checkpoint=trust_checkpoint).to(device).planner(**options)

@@ -25,7 +25,10 @@ from samp.policy.base import NonFiniteLossError, PolicySystemBase
 from samp.policy.losses import LossConfig, StepPrediction, loss_terms
 from samp.policy.network import PolicyConfig, SAMPNet, denormalize, normalize
 
-__all__ = ["NonFiniteLossError", "PolicySystem", "read_robot_sdf"]
+__all__ = ["NonFiniteLossError", "PolicySystem", "ROBOT_SDF_TABLES", "read_robot_sdf"]
+
+# Joint angles per one-joint table of the robot SDF at the robot points (0: exact); see `PolicySystem`.
+ROBOT_SDF_TABLES = 256
 
 
 def read_robot_sdf(ref: str | Path) -> dict:
@@ -64,13 +67,17 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         model: PolicyConfig fields (dof and num_points come from the robot). loss: LossConfig fields.
         collision_loss: False drops L_coll (ablation). robot_sdf_feature: False feeds zeros instead of
             the robot SDF values to the network (ablation); the collision weights still use it.
+        robot_sdf_tables: K > 0 reads the robot SDF between a point and the next link along the chain
+            from tables of K joint angles (`samp.robot_sdf.robot_points`, an approximation of the robot
+            SDF network measured on the benchmark); 0 evaluates the network for every pair (exact).
         optimizer, scheduler: `_partial_` config nodes (conf/optimizer/), see `PolicySystemBase`.
         robot_sdf_payload: the robot SDF as a checkpoint stores it (instead of `robot_sdf`).
     """
 
     def __init__(self, robot: str = "panda", robot_sdf: str | None = None, model: dict | None = None,
                  loss: dict | None = None, collision_loss: bool = True, robot_sdf_feature: bool = True,
-                 optimizer: dict | None = None, scheduler: dict | None = None, robot_sdf_payload: dict | None = None):
+                 optimizer: dict | None = None, scheduler: dict | None = None, robot_sdf_payload: dict | None = None,
+                 robot_sdf_tables: int = ROBOT_SDF_TABLES):
         super().__init__(robot, optimizer, scheduler)
         self.save_hyperparameters(ignore=["robot_sdf_payload"])
         if robot_sdf_payload is None:  # a new policy: read the artifact the config names
@@ -85,6 +92,7 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         self.net_cfg = PolicyConfig(**{**(model or {}), "dof": self.robot.dof, "num_points": len(self.robot.points)})
         self.net = SAMPNet(self.net_cfg)
         self.loss_cfg = LossConfig(**(loss or {}))
+        self.robot_sdf_tables = robot_sdf_tables
 
     def train(self, mode: bool = True) -> "PolicySystem":
         super().train(mode)
@@ -93,10 +101,11 @@ class PolicySystem(PolicySystemBase, kind="samp"):
 
     # ------------------------------------------------------------------ the policy
     def robot_features(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """q (B, n) radians -> T_q(P) (B, M, 3) and the robot SDF there (B, M), no gradients."""
+        """q (B, n) radians -> T_q(P) (B, M, 3) and the robot SDF there (B, M), no gradients; one FK for both."""
         with torch.no_grad():
-            points = self.robot.transform_points(q)
-            return points, self.robot_sdf.query(points, q)
+            poses = self.robot.link_poses(q)
+            points = self.robot.transform_points(q, poses)
+            return points, self.robot_sdf.at_robot_points(q, points, poses, self.robot_sdf_tables)
 
     def encode(self, grids: torch.Tensor) -> torch.Tensor | None:
         """(S, n_e, n_e, n_e) grids -> the env encoder's feature volumes (None without the env branch)."""
@@ -111,12 +120,17 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         u = self.net(normalize(q, self.limits), normalize(q_goal, self.limits), points, d_robot, features, scene, bounds)
         return denormalize(u, self.limits)
 
-    def planner(self, **options):
-        """The current weights as a `StepPolicy` (`SAMPStepPolicy`), for rollouts and `EvalCallback`."""
+    def planner(self, robot_sdf_tables: int | None = None, **options):
+        """The current weights as a `StepPolicy` (`SAMPStepPolicy`), for rollouts and `EvalCallback`.
+        `robot_sdf_tables` replaces the system's own (0: the exact robot SDF at the robot points)."""
         from samp.policy.step import SAMPStepPolicy
 
         if options:
-            raise ValueError(f"the samp policy takes no planner options, got {sorted(options)}")
+            raise ValueError(f"the samp policy takes only robot_sdf_tables as a planner option, got {sorted(options)}")
+        if robot_sdf_tables is not None:
+            if not isinstance(robot_sdf_tables, int) or robot_sdf_tables < 0 or robot_sdf_tables == 1:
+                raise ValueError(f"robot_sdf_tables must be 0 (exact) or an integer >= 2, got {robot_sdf_tables!r}")
+            self.robot_sdf_tables = robot_sdf_tables
         return SAMPStepPolicy(self)
 
     # ------------------------------------------------------------------ training
@@ -124,11 +138,13 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         q, q_next, scene = batch[BATCH_Q], batch[BATCH_NEXT], batch[BATCH_SCENE]
         present, local = scene.unique(return_inverse=True)  # each distinct scene is encoded once
         q_hat = self.predict(q, batch[BATCH_GOAL], self.encode(self.grids[present]), local, self.bounds)
-        pred_points = self.robot.transform_points(q_hat)
+        poses = self.robot.link_poses(q_hat)
+        pred_points = self.robot.transform_points(q_hat, poses)
         with torch.no_grad():
             true_points = self.robot.transform_points(q_next)
         step = StepPrediction(q_hat, q_next, pred_points, true_points, self.grids, scene, self.bounds,
-                              robot_sdf=lambda: self.robot_sdf.query(pred_points.detach(), q_hat.detach()))
+                              robot_sdf=lambda: self.robot_sdf.at_robot_points(q_hat.detach(), pred_points.detach(),
+                                                                               poses.detach(), self.robot_sdf_tables))
         return loss_terms(step, self.loss_cfg, off=() if self.hparams.collision_loss else ("coll",))
 
     # ------------------------------------------------------------------ checkpoints

@@ -20,6 +20,7 @@ from samp.paths import cache_dir, file_sha256, resolve_asset
 from samp.robot.config import RobotConfig, load_robot_config
 from samp.robot.geometry import LinkGeometry, link_geometry
 from samp.robot.points import sample_shell_points
+from samp.robot.serial import SerialFK
 from samp.robot.urdf import URDFModel, parse_urdf
 
 __all__ = ["Robot", "load_robot"]
@@ -76,15 +77,25 @@ class Robot(nn.Module):
         base_pose = self._fk_raw(self.home[None])[self._frame[self.base_link], 0]
         self._base_is_root = bool(torch.equal(base_pose, torch.eye(4, dtype=base_pose.dtype)))
         self.register_buffer("_base_inv", torch.linalg.inv(base_pose))
+        try:  # link poses in a few products for a serial arm (samp.robot.serial); else the general FK
+            self._serial = SerialFK(self.urdf, self.joint_names, self.link_names, held, self._base_inv.numpy())
+        except ValueError:
+            self._serial = None
 
         points, links, shells = self._robot_points()
         self.register_buffer("points", torch.from_numpy(points))
         self.register_buffer("point_links", torch.from_numpy(links).long())
         self.register_buffer("point_shells", torch.from_numpy(shells).long())
-        # Points are grouped by link: transform_points maps each link's contiguous run in one product.
+        # Derived from the config (not saved with a model): the chain frames of the collision links, and which
+        # collision link (index into link_names) carries each point (the robot SDF's own-link pairs).
+        self.register_buffer("_link_frames", torch.tensor([self._frame[n] for n in self.link_names]), persistent=False)
+        self.register_buffer("point_collision_links", torch.tensor(
+            [self.link_names.index(self.point_link_names[i]) for i in links], dtype=torch.long), persistent=False)
+        # Points are grouped by link: transform_points maps each link's contiguous run (index into link_names)
+        # in one product.
         starts = np.searchsorted(links, np.arange(len(self.point_link_names) + 1))
-        self._point_runs = [(li, slice(int(a), int(b))) for li, (a, b) in enumerate(zip(starts[:-1], starts[1:])) if b > a]
-        self.register_buffer("_point_frames", torch.tensor([self._frame[n] for n in self.point_link_names]))
+        self._point_runs = [(self.link_names.index(self.point_link_names[li]), slice(int(a), int(b)))
+                            for li, (a, b) in enumerate(zip(starts[:-1], starts[1:])) if b > a]
 
     # ----------------------------------------------------------------- validation and assets
     def _validate_against_urdf(self) -> None:
@@ -151,6 +162,8 @@ class Robot(nn.Module):
         device, dtype, *_ = torch._C._nn._parse_to(*args, **kwargs)
         super().to(*args, **kwargs)
         self.chain = self._set_chain(dtype=dtype or self.chain.dtype, device=device or self.chain.device)
+        if self._serial is not None:
+            self._serial.to(self.chain.dtype, self.chain.device)
         # Limits and home stay float64 from the config: rounded to float32, a configuration exactly at a
         # limit (as expert goals often are) would read as outside it.
         self.joint_limits = torch.tensor([self.cfg.lower, self.cfg.upper], dtype=torch.float64,
@@ -213,9 +226,24 @@ class Robot(nn.Module):
         T = self._fk_base(q)
         return {name: T[idx] for name, idx in self._frame.items()}
 
-    def transform_points(self, q: torch.Tensor) -> torch.Tensor:
-        """q (B, n) -> (B, M, 3) robot points in the base frame, T_q(P); differentiable in q."""
-        T = self._fk_base(q)[self._point_frames]  # (L, B, 4, 4)
+    def link_poses(self, q: torch.Tensor) -> torch.Tensor:
+        """q (B, n) radians -> (B, L, 4, 4) poses of the collision links (`link_names` order) in the base frame.
+
+        One FK for everything a policy step needs: `transform_points(q, poses)` and the robot SDF
+        (`RobotSDF.at_robot_points`) both take these instead of running FK again."""
+        if self._serial is not None:
+            self._check_q(q)
+            return self._serial(q)
+        return self._fk_base(q)[self._link_frames].transpose(0, 1)
+
+    def transform_points(self, q: torch.Tensor, poses: torch.Tensor | None = None) -> torch.Tensor:
+        """q (B, n) -> (B, M, 3) robot points in the base frame, T_q(P); differentiable in q.
+        `poses`: `link_poses(q)`, when the caller has them already."""
+        poses = self.link_poses(q) if poses is None else poses
+        if len(poses) <= 8:  # a few configurations: one gather of each point's pose is cheapest
+            T = poses[:, self.point_collision_links]  # (B, M, 4, 4)
+            return torch.einsum("bmij,mj->bmi", T[..., :3, :3], self.points) + T[..., :3, 3]
+        T = poses.transpose(0, 1)  # (L, B, 4, 4): each link's contiguous run of points in one product
         return torch.cat([torch.einsum("bij,mj->bmi", T[li, :, :3, :3], self.points[run]) + T[li, :, None, :3, 3]
                           for li, run in self._point_runs], dim=1)
 

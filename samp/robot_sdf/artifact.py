@@ -119,6 +119,9 @@ def _read(ref: Path | str) -> tuple[dict, dict, Path]:
     if not path.is_file():
         raise FileNotFoundError(f"robot SDF {ref!r} not found: REF is a run folder, a {ARTIFACT_FILE} file or a "
                                 "Lightning checkpoint of a robot SDF run")
+    from samp.integrity import check_recorded_hash
+
+    check_recorded_hash(path)  # the sha256 its run recorded, when it is in a run folder
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - torch raises several types for a foreign file

@@ -27,6 +27,10 @@ from torch import nn
 __all__ = ["HASH_PRIMES", "INTERPOLATIONS", "HashGridEncoding", "level_resolutions"]
 
 HASH_PRIMES = (1, 2654435761, 805459861)
+# Without autograd, points are encoded in one pass over all levels (`_fused`), this many at a time: a
+# policy step's few hundred point-link pairs would cost the per-level loop's Python overhead, not
+# arithmetic, and chunks of this size keep the pass's temporaries in cache.
+FUSED_CHUNK = 1 << 11
 INTERPOLATIONS = ("linear", "smoothstep")
 
 
@@ -131,7 +135,68 @@ class HashGridEncoding(nn.Module):
         if x.ndim != 2 or x.shape[-1] != 3:
             raise ValueError(f"points must have shape (P, 3), got {tuple(x.shape)}")
         xt = x.clamp(0, 1).to(self.tables[0].dtype).T.contiguous()  # (3, P)
+        if not torch.is_grad_enabled():
+            return torch.cat([self._fused(xt[:, i:i + FUSED_CHUNK]) for i in range(0, xt.shape[1], FUSED_CHUNK)]) \
+                if xt.shape[1] > FUSED_CHUNK else self._fused(xt)
         return torch.cat([self._level(xt, level) for level in range(self.levels)], dim=1)
+
+    def _packed(self) -> dict[str, torch.Tensor]:
+        """Every level's constants side by side, and the tables stacked into one, for `_fused`; rebuilt
+        when a table changes (an optimizer step or `load_state_dict` bumps its version) or moves."""
+        key = tuple((t.data_ptr(), t._version, t.dtype) for t in self.tables)
+        if getattr(self, "_pack_key", None) != key:
+            with torch.inference_mode(False):  # plain tensors, usable in and out of inference mode
+                self._pack = self._pack_tables()
+            self._pack_key = key
+        return self._pack
+
+    def _pack_tables(self) -> dict:
+        """`_packed`'s contents, built from the current tables."""
+        device, dtype = self.tables[0].device, self.tables[0].dtype
+        rows = [len(t) for t in self.tables]
+        res = torch.tensor(self.resolutions, device=device)
+        dense_stride = torch.stack([torch.ones_like(res), res + 1, (res + 1) ** 2], dim=1)  # (L, 3)
+        hashed = torch.tensor(self.hashed, device=device)
+        table = torch.cat([t.detach() for t in self.tables])
+        pack = {
+            "table": table,
+            "offset": torch.tensor([0, *rows[:-1]], device=device).cumsum(0).int()[:, None],  # (L, 1)
+            "res": res.to(dtype)[:, None, None],  # (L, 1, 1)
+            "top": (res - 1).clamp(min=0).to(dtype)[:, None, None],
+            # per-axis multipliers: the hash primes, or the dense strides; and the mask of the hash
+            "mult": torch.where(hashed[:, None], self.primes[None], dense_stride)[:, :, None],  # (L, 3, 1)
+            "mask": torch.where(hashed, self.table_size - 1, -1)[:, None, None],  # (L, 1, 1): -1 keeps all bits
+            "dense": self.hashed.index(True) if any(self.hashed) else self.levels,  # dense levels come first
+        }
+        if self.features * table.element_size() == 8:  # a row is 8 bytes: gather rows as one int64 each
+            pack["rows64"] = table.view(torch.int64).view(-1)
+        return pack
+
+    def _fused(self, xt: torch.Tensor) -> torch.Tensor:
+        """`forward` for all levels at once, without autograd: the same rows and weights as `_level`, in
+        about 25 operations instead of about 40 per level (what a policy step's few hundred points cost)."""
+        k = self._packed()
+        pos = xt[None] * k["res"]  # (L, 3, P)
+        base = pos.floor().minimum(k["top"])
+        w1 = pos - base
+        if self.interpolation == "smoothstep":
+            w1 = w1 * w1 * (3 - 2 * w1)
+        lo = base.long()
+        # (2, L, 3, P): each axis's term for the lower and the upper corner; below 2^31 (a row index)
+        terms = (torch.stack([lo, lo + 1]) * k["mult"] & k["mask"]).int()
+        tx, ty, tz = terms[:, None, None, :, 0], terms[None, :, None, :, 1], terms[None, None, :, :, 2]  # (2,2,2,L,P)
+        d = k["dense"]  # levels [0, d) are dense (rows add up), the rest hashed (rows XOR)
+        rows = torch.cat([tx[..., :d, :] + ty[..., :d, :] + tz[..., :d, :],
+                          tx[..., d:, :] ^ ty[..., d:, :] ^ tz[..., d:, :]], dim=3) + k["offset"]
+        w = torch.stack([1 - w1, w1])  # (2, L, 3, P)
+        weights = w[:, None, None, :, 0] * w[None, :, None, :, 1] * w[None, None, :, :, 2]  # (2, 2, 2, L, P)
+        L, P, F = pos.shape[0], pos.shape[2], self.features
+        if "rows64" in k:  # one 8-byte gather per corner is several times faster than index_select of (., 2) rows
+            values = k["rows64"].index_select(0, rows.view(-1)).view(k["table"].dtype).view(8, L, P, F)
+        else:
+            values = k["table"].index_select(0, rows.view(-1)).view(8, L, P, F)
+        out = (weights.view(8, L, P, 1) * values).sum(0)  # (L, P, F)
+        return out.transpose(0, 1).reshape(P, L * F)
 
     def extra_repr(self) -> str:
         return (f"levels={self.levels}, features={self.features}, table_size={self.table_size}, "

@@ -191,14 +191,19 @@ class SampleSet:
 
 
 def load_samples(folder: Path | str) -> SampleSet:
-    """Read a samples dataset folder (after the registry's size check) into one `SampleSet`."""
-    from samp.data.registry import read_manifest
+    """Read a samples dataset folder into one `SampleSet`, after checking it as `python -m samp.data verify`
+    does (the manifest's own hash, every file's sha256)."""
+    from samp.data.registry import DatasetError, file_problems, read_manifest, recreate_hint
 
     folder = Path(folder)
     manifest = read_manifest(folder)
     if manifest.get("generator") != SAMPLES_FORMAT:
         raise ValueError(f"{folder} is not a robot SDF sample set ({SAMPLES_FORMAT}); its generator is "
                          f"{manifest.get('generator')!r}")
+    problems = file_problems(folder, manifest)
+    if problems:
+        raise DatasetError(f"sample set {folder} fails verification: {'; '.join(problems[:3])}; "
+                           f"{recreate_hint(folder, manifest, 'let the next robot SDF training sample it again')}")
     norm = json.loads((folder / NORMALISATION_FILE).read_text())
     points, sdf, link, near = [], [], [], []
     for i, name in enumerate(norm["links"]):

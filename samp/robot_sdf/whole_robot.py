@@ -76,10 +76,10 @@ class RobotSDF(nn.Module):
                             f"convert them or call robot_sdf.to({points.dtype})")
 
     # ----------------------------------------------------------------- geometry
-    def link_coords(self, points: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """(B, N, 3) base-frame points, (B, n) -> (B, N, L, 3) points in every link's normalised box."""
-        fk = self.robot.fk(q)
-        T = torch.stack([fk[name] for name in self.link_names], dim=1)  # (B, L, 4, 4)
+    def link_coords(self, points: torch.Tensor, q: torch.Tensor, poses: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, N, 3) base-frame points, (B, n) -> (B, N, L, 3) points in every link's normalised box.
+        `poses`: the links' `robot.link_poses(q)`, when the caller has them already."""
+        T = self.robot.link_poses(q) if poses is None else poses  # (B, L, 4, 4)
         R, t = T[..., :3, :3], T[..., :3, 3]
         local = torch.einsum("blji,bnlj->bnli", R, points[:, :, None, :] - t[:, None])  # R^T (p - t)
         return (local - self.centres) / self.scales[:, None]
@@ -133,6 +133,34 @@ class RobotSDF(nn.Module):
         rest = ~(done | first) & (bound < best[:, None])
         values = self._fill(values, u, rest)
         return values.min(dim=1).values.view(B, N)
+
+    def at_robot_points(self, q: torch.Tensor, points: torch.Tensor | None = None,
+                        poses: torch.Tensor | None = None, tables: int = 0) -> torch.Tensor:
+        """q (B, n) -> (B, M) the robot SDF at the robot's own points posed at q, T_q(P): the values of
+        `query(robot.transform_points(q), q)`, for a fraction of the work (`samp.robot_sdf.robot_points`).
+
+        `points` and `poses` are `robot.transform_points(q)` and `robot.link_poses(q)` when the caller has
+        them. `tables` K > 0 reads the pairs one joint apart from tables of K angles (an approximation of
+        the network); 0 is exact. No gradients (the robot SDF is frozen wherever a policy uses it).
+        """
+        with torch.no_grad():
+            poses = self.robot.link_poses(q) if poses is None else poses
+            points = self.robot.transform_points(q, poses) if points is None else points
+            self._check(points, q)
+            return self.self_distances(tables).query(q, points, poses)
+
+    def self_distances(self, tables: int = 0):
+        """The `SelfDistances` of these weights (built on first use, rebuilt when the weights, device or
+        dtype change)."""
+        from samp.robot_sdf.robot_points import SelfDistances
+
+        key = (tables, self.centres.device, self.centres.dtype,
+               *((t.data_ptr(), t._version) for t in [*self.net.parameters(), *self.net.buffers()]))
+        cache = self.__dict__.setdefault("_self_distances", {})
+        if cache.get(tables, (None,))[0] != key:
+            with torch.inference_mode(False), torch.no_grad():  # plain tensors, usable in and out of inference mode
+                cache[tables] = (key, SelfDistances(self, tables))
+        return cache[tables][1]
 
     def _fill(self, values: torch.Tensor, u: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """Evaluate the (BN, L) pairs selected by `mask` into `values` (out of place, for autograd)."""

@@ -38,13 +38,21 @@ def _root(value: str | None) -> Path:
     return path if path.is_absolute() or path.exists() else REPO_ROOT / path
 
 
-def _runs(folder: str | None):
-    from samp.runs.registry import find_runs
+def _runs(folder: str | None, quiet: bool = False):
+    """The intact runs under a folder; each damaged run.json is named on stderr (unless `quiet`)."""
+    from samp.runs.registry import scan_runs
 
-    runs = find_runs(_root(folder))
+    runs, damaged = scan_runs(_root(folder))
+    if not quiet:
+        _report_damaged(damaged)
     if not runs:
-        raise FileNotFoundError(f"no runs (folders with a run.json) under {_root(folder)}")
+        raise FileNotFoundError(f"no runs (folders with a readable run.json) under {_root(folder)}")
     return runs
+
+
+def _report_damaged(damaged) -> None:
+    for path, why in damaged:
+        print(f"damaged run record, left out: {why}", file=sys.stderr)  # `why` names the file
 
 
 def _args(command: str, args: list[str], keys: tuple[str, ...], subject: str | None = None, lists=("metrics",),
@@ -75,13 +83,18 @@ def _by(command: str, opts: dict) -> str:
 
 def _ls(args: list[str]) -> None:
     from samp.runs.protocol import label
-    from samp.runs.registry import matches
+    from samp.runs.registry import matches, scan_runs
     from samp.runs.tables import list_table, markdown
 
     _, opts, filters = _args("ls", args, ("root", "keys"), lists=("keys",), filters=True)
-    runs = [r for r in _runs(opts.get("root")) if matches(r, filters)]
+    found, damaged = scan_runs(_root(opts.get("root")))
+    if not found and not damaged:
+        raise FileNotFoundError(f"no runs (folders with a run.json) under {_root(opts.get('root'))}")
+    runs = [r for r in found if matches(r, filters)]
     header, rows = list_table(runs, opts.get("keys", []))
-    print(markdown(header, rows) + f"\n{len(rows)} run(s)")
+    print(markdown(header, rows) + f"\n{len(rows)} run(s)" + (f", {len(damaged)} damaged:" if damaged else ""))
+    for _, why in damaged:
+        print(f"DAMAGED {why}")  # `why` names the file
     for protocol in sorted({r.protocol for r in runs if r.protocol is not None}, reverse=True):
         print(f"protocol {label(protocol)}")
 
@@ -138,12 +151,13 @@ def _plot(args: list[str]) -> None:
 
 def _paper_tables(args: list[str]) -> None:
     from samp.runs.paper import paper_tables
-    from samp.runs.registry import find_runs
+    from samp.runs.registry import scan_runs
     from samp.runs.tables import markdown, write_table
 
     _, opts, _ = _args("paper-tables", args, ("root", "out"))
     root = _root(opts.get("root"))
-    runs = find_runs(root) if root.is_dir() else []
+    runs, damaged = scan_runs(root) if root.is_dir() else ([], [])
+    _report_damaged(damaged)
     out = Path(opts["out"]) if opts.get("out") else root / "paper_tables"
     for name, (title, header, rows, note) in paper_tables(runs, root).items():
         print(f"{title}\n\n{markdown(header, rows)}\n{note}\n")

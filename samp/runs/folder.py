@@ -18,12 +18,16 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["CHECKPOINTS_DIR", "CONFIG_DIR", "LAST_CHECKPOINT", "METRICS_CSV", "RUN_JSON", "STATUSES", "RunFolder",
-           "Terminated", "runs_root"]
+__all__ = ["CHECKPOINTS_DIR", "CONFIG_DIR", "LAST_CHECKPOINT", "METRICS_CSV", "RUN_JSON", "STATUSES", "DamagedRecord",
+           "RunFolder", "Terminated", "runs_root"]
 
 from samp.names import CHECKPOINTS_DIR, CONFIG_DIR, LAST_CHECKPOINT, METRICS_CSV, RUN_JSON
 
 STATUSES = ("running", "completed", "failed", "interrupted")
+
+
+class DamagedRecord(ValueError):
+    """A run.json that is not a JSON object of the expected shape (its path and what is wrong in the message)."""
 
 
 def _now() -> str:
@@ -48,8 +52,9 @@ class RunFolder:
     @classmethod
     def create(cls, root: Path | str, experiment: str) -> "RunFolder":
         """`<root>/<experiment>/<UTC timestamp>/`, with a numeric suffix if that second is taken."""
-        if not experiment or "/" in experiment or experiment.startswith("."):
-            raise ValueError(f"experiment name must be a plain folder name, got {experiment!r}")
+        from samp.paths import check_name
+
+        check_name(experiment, "experiment name")
         parent = Path(root) / experiment
         parent.mkdir(parents=True, exist_ok=True)
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d_%H-%M-%S")
@@ -68,7 +73,7 @@ class RunFolder:
         already holds a run, which is never overwritten."""
         path = Path(path)
         if (path / RUN_JSON).is_file():
-            status = json.loads((path / RUN_JSON).read_text()).get("status")
+            status = RunFolder(path).read().get("status")
             raise ValueError(f"{path} already holds a run (status {status}); continue it with resume={path}, "
                              "or choose another run_dir")
         path.mkdir(parents=True, exist_ok=True)
@@ -120,8 +125,24 @@ class RunFolder:
         return len(dropped)
 
     def read(self) -> dict:
+        """The record ({} before the first one); DamagedRecord naming the file when it is not a JSON
+        object, or when its config or metrics are not objects."""
         path = self.path / RUN_JSON
-        return json.loads(path.read_text()) if path.is_file() else {}
+        if not path.is_file():
+            return {}
+        try:
+            record = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise DamagedRecord(f"{path} is not valid JSON ({err}); the run record is damaged: restore it, or move the "
+                                "run folder away") from None
+        if not isinstance(record, dict):
+            raise DamagedRecord(f"{path} holds a JSON {type(record).__name__}, not a run record (an object); restore it, "
+                                "or move the run folder away")
+        for key in ("config", "metrics"):
+            if record.get(key) is not None and not isinstance(record[key], dict):
+                raise DamagedRecord(f"{path}: '{key}' is a {type(record[key]).__name__}, not an object; the run record "
+                                    "is damaged: restore it, or move the run folder away")
+        return record
 
     def update(self, **fields) -> dict:
         """Merge `fields` into run.json (written to a temporary file, then renamed into place)."""
@@ -150,14 +171,21 @@ class RunFolder:
             with _sigterm_raises():
                 yield self
         except (KeyboardInterrupt, SystemExit, Terminated):
-            self.update(status="interrupted", end=_now())
+            self.update(status="interrupted", end=_now(), **self._hashes())
             raise
         except BaseException as err:
             self.update(status="failed", end=_now(), error=f"{type(err).__name__}: {err}",
-                        traceback=traceback.format_exc(limit=20))
+                        traceback=traceback.format_exc(limit=20), **self._hashes())
             raise
         else:
-            self.update(status="completed", end=_now())
+            self.update(status="completed", end=_now(), **self._hashes())
+
+    def _hashes(self) -> dict:
+        """{"files_sha256": ...}: the sha256 of the run's checkpoints and artifacts as the run ends, which
+        loading them checks (`samp.integrity.check_recorded_hash`)."""
+        from samp.integrity import FILES_SHA256, hash_run_files
+
+        return {FILES_SHA256: hash_run_files(self.path)}
 
 
 class Terminated(BaseException):

@@ -18,10 +18,11 @@ from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import flatten
 from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rate, pooled_interval, protocol_of
 
-__all__ = ["EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "pooled", "varying_keys"]
+__all__ = ["EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "pooled", "scan_runs",
+           "varying_keys"]
 
 EVAL_METRICS = Path("eval") / "metrics.json"  # written by `python -m samp.eval` (samp.eval.names)
-HIDDEN = ("config", "metrics", "packages", "traceback", "command", "starts", "loggers")  # not keys of their own
+HIDDEN = ("config", "metrics", "packages", "traceback", "command", "starts", "loggers", "files_sha256")  # not keys of their own
 
 
 @dataclass
@@ -110,14 +111,26 @@ def load_run(path: Path | str) -> Run:
     return Run(folder.path, folder.read())
 
 
-def find_runs(root: Path | str) -> list[Run]:
-    """Every run under `root` (or `root` itself when it is a run folder), oldest first."""
+def scan_runs(root: Path | str) -> tuple[list[Run], list[tuple[Path, str]]]:
+    """(every intact run under `root` (or `root` itself when it is a run folder), oldest first; every
+    damaged record as (run.json path, what is wrong)). One bad run.json never hides the others."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no such folder: {root}")
     paths = [root] if (root / RUN_JSON).is_file() else sorted(p.parent for p in root.rglob(RUN_JSON))
-    runs = [Run(p, RunFolder(p).read()) for p in paths]
-    return sorted(runs, key=lambda r: (str(r.record.get("start") or ""), str(r.path)))
+    runs, damaged = [], []
+    for p in paths:
+        try:
+            runs.append(Run(p, RunFolder(p).read()))
+        except (ValueError, OSError) as err:  # DamagedRecord, or a file that cannot be read
+            damaged.append((p / RUN_JSON, str(err)))
+    return sorted(runs, key=lambda r: (str(r.record.get("start") or ""), str(r.path))), damaged
+
+
+def find_runs(root: Path | str) -> list[Run]:
+    """Every intact run under `root` (or `root` itself when it is a run folder), oldest first; damaged
+    records are left out (`scan_runs` names them)."""
+    return scan_runs(root)[0]
 
 
 def matches(run: Run, filters: list[str]) -> bool:

@@ -12,6 +12,12 @@ __all__ = ["TrainSchema", "compose_train_config"]
 
 PICK_EXPERIMENT = "pick an experiment with experiment=NAME (`python -m samp.train --help` lists them)"
 HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
+# Ranges of arguments by name, for every `_target_` that takes them: checked with the types when the config
+# is composed, before any run folder or prerequisite (issue 21). (low, high), inclusive; None: unbounded.
+RANGES = {"n_e": (2, None), "batch_size": (1, None), "num_workers": (0, None), "max_steps": (-1, None),
+          "max_epochs": (-1, None), "steps_per_epoch": (1, None), "val_samples": (0, None), "noise": (0, None),
+          "scenes_per_batch": (0, None), "lr": (0, None), "weight_decay": (0, None)}
+_SCALARS = {"int": int, "float": float, "bool": bool, "str": str, "None": type(None)}
 
 
 @dataclass
@@ -32,6 +38,7 @@ class TrainSchema:
     evaluation: Any = None
     run_dir: Any = None
     resume: Any = None
+    trust_checkpoint: bool = False
 
 
 def _groups() -> set[str]:
@@ -91,6 +98,70 @@ def _check_targets(node, path: str = "") -> None:
             _check_targets(item, f"{path}[{i}]")
 
 
+def _allowed(annotation) -> tuple[type, ...] | None:
+    """The scalar types an annotation admits (`int`, `float | None`, `Optional[int]`, ...); None when it
+    admits anything else too (then nothing is checked)."""
+    import typing
+
+    if isinstance(annotation, str):
+        parts = [p.strip() for p in annotation.replace("Optional[", "None | ").rstrip("]").split("|")]
+        return tuple(_SCALARS[p] for p in parts) if parts and all(p in _SCALARS for p in parts) else None
+    if annotation in _SCALARS.values():
+        return (annotation,)
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
+        return tuple(args) if all(a in _SCALARS.values() for a in args) else None
+    return None
+
+
+def _fits(value, types: tuple[type, ...]) -> bool:
+    if isinstance(value, bool):
+        return bool in types
+    if isinstance(value, int):
+        return int in types or float in types
+    return any(isinstance(value, t) for t in types if t is not bool)
+
+
+def _check_values(node, resolved, path: str = "") -> None:
+    """Every `_target_` argument given a scalar must have a type its annotation admits and lie in RANGES:
+    a ValueError names the key, the value and what is allowed. `node` is unresolved (interpolations are
+    checked by their resolved value, `resolved`)."""
+    from hydra.utils import get_object
+
+    if isinstance(node, dict):
+        target = node.get("_target_")
+        params = {}
+        if target is not None:
+            try:
+                params = inspect.signature(get_object(target)).parameters
+            except (ImportError, AttributeError, ValueError, TypeError):
+                params = {}
+        for key, value in node.items():
+            where = f"{path}.{key}" if path else str(key)
+            got = resolved.get(key) if isinstance(resolved, dict) else None
+            later = isinstance(value, str) and "${" in value and got is None  # set by the recipe (run_dir, ...)
+            if key in params and not isinstance(got, (dict, list)) and key not in HYDRA_KEYS and not later:
+                types = _allowed(params[key].annotation)
+                if types is not None and not _fits(got, types):
+                    names = " or ".join("null" if t is type(None) else t.__name__ for t in types)
+                    raise ValueError(f"config key {where}={got!r}: {target} takes {names} for {key!r}, got a "
+                                     f"{type(got).__name__}; give e.g. {where}={_example(types)}")
+                low, high = RANGES.get(key, (None, None))
+                if isinstance(got, (int, float)) and not isinstance(got, bool) and (
+                        (low is not None and got < low) or (high is not None and got > high)):
+                    allowed = f">= {low}" if high is None else f"in [{low}, {high}]"
+                    raise ValueError(f"config key {where}={got!r} is out of range: {key} must be {allowed}")
+            _check_values(value, got, where)
+    elif isinstance(node, list):
+        for i, item in enumerate(node):
+            _check_values(item, resolved[i] if isinstance(resolved, list) and i < len(resolved) else None,
+                          f"{path}[{i}]")
+
+
+def _example(types: tuple[type, ...]) -> str:
+    return {int: "50", float: "0.5", bool: "true", str: "NAME"}.get(next(t for t in types if t is not type(None)), "null")
+
+
 def compose_train_config(overrides: list[str]):
     """The composed config, checked strictly: unknown top-level keys and unknown `_target_` arguments
     are errors that name the valid keys (DESIGN section 7)."""
@@ -106,10 +177,25 @@ def compose_train_config(overrides: list[str]):
     for key in ("name", "system", "datamodule"):
         if OmegaConf.is_missing(cfg, key):
             raise ValueError(f"the config sets no `{key}`; {PICK_EXPERIMENT}")
+    from samp.paths import check_name
+
+    check_name(cfg.name, "experiment name (name=...), the folder its runs go to,")
     plain = OmegaConf.to_container(cfg, resolve=False)
     try:  # types of the top-level values (seed must be an int, ...)
         OmegaConf.merge(OmegaConf.structured(TrainSchema), {k: v for k, v in plain.items() if k in schema_keys})
     except (ConfigKeyError, ValidationError) as err:
-        raise ValueError(f"invalid top-level config value: {str(err).splitlines()[0]}") from None
+        key = getattr(err, "full_key", None) or "?"
+        raise ValueError(f"invalid top-level config value for key {key!r}: {str(err).splitlines()[0]} (see "
+                         "conf/train.yaml for what it takes)") from None
     _check_targets(plain)
+    _check_values(plain, _resolved(cfg))
     return cfg
+
+
+def _resolved(cfg) -> dict:
+    """The config resolved where it can be (an interpolation that cannot be resolved yet stays as written)."""
+    from omegaconf import OmegaConf
+
+    from samp.cli import _resolved as resolve
+
+    return resolve(cfg, OmegaConf.to_container(cfg, resolve=False))

@@ -19,6 +19,7 @@ import warnings
 from contextlib import nullcontext
 from pathlib import Path
 
+from samp.integrity import trusted
 from samp.train.config import compose_train_config
 
 __all__ = ["train"]
@@ -47,7 +48,9 @@ def _resume_overrides(overrides: list[str], resume: str | Path | None = None) ->
     if path in (None, ""):
         return overrides
     folder = RunFolder(_repo_path(str(path)))
-    recorded = [o for o in folder.read().get("overrides", []) if override_key(o) not in ("resume", "run_dir")]
+    # trust_checkpoint is never carried over: trusting a file is a decision for each load
+    recorded = [o for o in folder.read().get("overrides", [])
+                if override_key(o) not in ("resume", "run_dir", "trust_checkpoint")]
     return merge_overrides(recorded, overrides)
 
 
@@ -71,6 +74,9 @@ def _open_folder(cfg):
         if not folder.last_checkpoint.is_file():
             raise FileNotFoundError(f"cannot resume {folder.path}: it has no {folder.last_checkpoint.name} in "
                                     f"checkpoints/ (the run stopped before its first checkpoint); start it again")
+        from samp.integrity import check_recorded_hash
+
+        check_recorded_hash(folder.last_checkpoint)  # before the run is marked running again
         return folder, folder.last_checkpoint
     if cfg.run_dir:  # a sweep member's folder, or one the user names
         folder = RunFolder.create_at(_repo_path(cfg.run_dir))
@@ -121,7 +127,7 @@ def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: st
     if rank_zero:
         folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
         if ckpt is not None:
-            _trim_metrics(folder, ckpt)
+            _trim_metrics(folder, ckpt, _trust(cfg))
         print(f"run folder: {folder.path}" + (f" (resuming from {ckpt.name})" if ckpt else ""), flush=True)
 
     # The CSV logger writes into the run folder, which already holds .hydra/ and run.json by design.
@@ -137,7 +143,9 @@ def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: st
             loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
             trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
             start = time.perf_counter()
-            trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None)
+            with _safe_resume(ckpt, cfg):
+                trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None,
+                            weights_only=None if ckpt is None else not trusted(_trust(cfg)))
             fit_s = time.perf_counter() - start + ((folder.read().get("fit_time_s") or 0.0) if ckpt else 0.0)
             trainer.save_checkpoint(folder.last_checkpoint)
             if not rank_zero:
@@ -157,11 +165,28 @@ def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: st
     return folder
 
 
-def _trim_metrics(folder, ckpt: Path) -> None:
-    """Rows of metrics.csv logged after the checkpoint a resumed run starts from are set aside."""
+def _trust(cfg) -> bool | None:
+    """`trust_checkpoint=true` on the command line (a key of the training config), else the environment."""
+    return True if cfg.trust_checkpoint else None
+
+
+def _safe_resume(ckpt: Path | None, cfg):
+    """Resuming: Lightning unpickles the checkpoint with `weights_only=True` and samp's allow-list
+    (`samp.integrity`), so it cannot run code (its hash was checked when the folder was opened)."""
     import torch
 
-    step = int(torch.load(ckpt, map_location="cpu", weights_only=False, mmap=True)["global_step"])
+    from samp.integrity import safe_globals
+
+    if ckpt is None or trusted(_trust(cfg)):
+        return nullcontext()
+    return torch.serialization.safe_globals(safe_globals())
+
+
+def _trim_metrics(folder, ckpt: Path, trust: bool | None = None) -> None:
+    """Rows of metrics.csv logged after the checkpoint a resumed run starts from are set aside."""
+    from samp.integrity import load_torch_file
+
+    step = int(load_torch_file(ckpt, "checkpoint to resume from", trust=trust, mmap=True)["global_step"])
     moved = folder.trim_metrics(step)
     if moved:
         print(f"metrics.csv: {moved} row(s) logged after step {step} (past the checkpoint) moved to "

@@ -31,6 +31,7 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
     `rdf` maps N -> `fit_bernstein` keyword arguments (default `RDF_DEFAULTS`); `evaluation` holds
     `SDFEvalConfig` fields.
     """
+    import dataclasses
     import json
 
     import torch
@@ -48,7 +49,7 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
     folder = RunFolder.create(Path(runs_root) if runs_root else default_root(), f"robot_sdf_compare_{robot}")
     with folder.record(experiment=f"robot_sdf_compare_{robot}", overrides=list(overrides)):
         model = load_robot(robot, dtype=torch.float32)
-        methods, runs = {}, {}
+        methods, runs, network_configs = {}, {}, {}
         for name in NETWORK_MODELS:
             # Inside the comparison's own folder: a run under runs/robot_sdf_<robot>/ would be what a later
             # `system.robot_sdf=robot_sdf_<robot>` picks up (the newest completed run of that name).
@@ -57,7 +58,9 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
             record = run.read()
             sdf = load_robot_sdf(run.path, model)
             methods[sdf.method] = {"model": sdf, "train_time_s": record["metrics"].get("train_time_s")}
-            runs[sdf.method] = {"run_dir": str(run.path), "dataset_id": record.get("dataset_id")}
+            runs[sdf.method] = {"run_dir": str(run.path), "dataset_id": record.get("dataset_id"),
+                                "seed": record.get("seed")}
+            network_configs[sdf.method] = record.get("config")
         dataset_ids = {r["dataset_id"] for r in runs.values()}
         if len(dataset_ids) != 1:
             raise RuntimeError(f"the network runs used different sample sets {sorted(dataset_ids)}")
@@ -73,10 +76,19 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
                           {"train_time_s": seconds, "fit": {"iterations": info.iterations, "residuals": info.residuals}})
             methods[sdf.method] = {"model": sdf, "train_time_s": seconds}
             runs[sdf.method] = {"fit_iterations": info.iterations, "fit_residuals": info.residuals}
-        report = evaluate_methods(model, methods, SDFEvalConfig(**(evaluation or {})), folder.path)
+        eval_config = SDFEvalConfig(**(evaluation or {}))
+        report = evaluate_methods(model, methods, eval_config, folder.path)
         report["runs"], report["dataset_id"] = runs, dataset_id
         (folder.path / "robot_sdf_table.json").write_text(json.dumps(report, indent=2))
-        folder.update(dataset_id=dataset_id, runs=runs,
+        seeds = {r["seed"] for r in runs.values() if "seed" in r}
+        # What traces the table back: the networks' seed and resolved configs (their runs), the RDF settings,
+        # and the evaluation's sizes and seed.
+        config = {"robot": robot, "overrides": list(overrides), "network_models": list(NETWORK_MODELS),
+                  "rdf": {str(n): dict(kw) for n, kw in (rdf or RDF_DEFAULTS).items()},
+                  "evaluation": dataclasses.asdict(eval_config),
+                  "networks": network_configs}
+        folder.update(dataset_id=dataset_id, runs=runs, seed=seeds.pop() if len(seeds) == 1 else sorted(seeds),
+                      evaluation_seed=eval_config.seed, config=config,
                       metrics={f"{label}/{key}/{k}": v for label, res in report["methods"].items()
                                for key in ("whole_robot", "per_link") for k, v in res[key].items()})
     return report, folder.path

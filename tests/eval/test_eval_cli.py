@@ -35,7 +35,7 @@ def fake_policy_package(monkeypatch, panda):
     calls = _Calls()
     module = types.ModuleType("samp.policy")
 
-    def load_policy(checkpoint, run_dir):
+    def load_policy(checkpoint, run_dir, **options):
         calls.append((checkpoint, run_dir))
         return StraightLinePolicy(getattr(load_policy, "robot", panda))
 

@@ -75,25 +75,29 @@ def write_report(args: argparse.Namespace, metrics: dict) -> None:
         print(f"wrote {args.out}")
 
 
-def untrained_policy_system(robot, robot_name: str):
-    """A PolicySystem around an untrained robot SDF of the default architecture (conf/model/robot_sdf_hash.yaml):
-    its cost is that of a trained one, so step and training times hold without a trained run."""
+def untrained_policy_system(robot, robot_name: str, robot_sdf: str = "robot_sdf_hash", model: dict | None = None,
+                            artifact: str | None = None):
+    """A PolicySystem (network `model` keys over the paper widths of `PolicyConfig`) around an untrained robot SDF of
+    the architecture conf/model/ROBOT_SDF.yaml, or the trained robot SDF `artifact` (a robot_sdf.pt)."""
     from omegaconf import OmegaConf
 
     from samp.paths import conf_dir
-    from samp.policy.system import PolicySystem
+    from samp.policy.system import PolicySystem, read_robot_sdf
     from samp.robot_sdf.artifact import describe, net_spec
     from samp.robot_sdf.model import UnifiedHashSDF
     from samp.robot_sdf.samples import link_normalisation
 
-    kwargs = {k: v for k, v in OmegaConf.to_container(OmegaConf.load(conf_dir() / "model" / "robot_sdf_hash.yaml")).items()
-              if not k.startswith("_")}
-    kwargs["num_links"] = len(robot.link_names)
-    net = UnifiedHashSDF(**kwargs)
-    centres, scales = link_normalisation(robot, 0.02)
-    payload = {"info": describe(robot, net_spec(net, kwargs), "bench", torch.tensor(centres), torch.tensor(scales)),
-               "state_dict": net.state_dict()}
-    return PolicySystem(robot=robot_name, robot_sdf_payload=payload)
+    if artifact:
+        payload = read_robot_sdf(artifact)
+    else:
+        kwargs = {k: v for k, v in OmegaConf.to_container(OmegaConf.load(conf_dir() / "model" / f"{robot_sdf}.yaml")).items()
+                  if not k.startswith("_")}
+        kwargs["num_links"] = len(robot.link_names)
+        net = UnifiedHashSDF(**kwargs)
+        centres, scales = link_normalisation(robot, 0.02)
+        payload = {"info": describe(robot, net_spec(net, kwargs), "bench", torch.tensor(centres), torch.tensor(scales)),
+                   "state_dict": net.state_dict()}
+    return PolicySystem(robot=robot_name, robot_sdf_payload=payload, model=model)
 
 
 def bench_scenes() -> list:

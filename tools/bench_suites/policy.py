@@ -1,9 +1,22 @@
-"""`policy` suite: SAMP policy training samples per second (scene-grouped batches vs random batches) and one policy
-step, at each --anchors n_e (the option is added by the scene suite); peak memory."""
+"""`policy` suite: one SAMP policy step at B = 1, stage by stage, against the generic exact path as the
+baseline, the batched step's throughput, and training samples per second; peak memory.
+
+Networks: --policy-run RUN_DIR's trained policy at its own n_e, else untrained networks of two sizes: the
+quickstart network (half-width PointNet, the small robot SDF) at the first --anchors n_e and the paper-width
+network (the default robot SDF) at the others. An untrained robot SDF answers near 0 everywhere, which makes
+its pair culling look cheaper than a trained one's: give --robot-sdf ARTIFACT (a trained robot_sdf.pt) for
+step times that hold. Stages of a step (`_stages`): FK of the links, posing the robot points, the robot SDF
+at them (tables, and the exact network for comparison), sampling the scene's feature volume, the PointNet,
+the other MLPs; "other" is the rest of the step call (normalisation, argument passing, Python).
+
+Reads --anchors (added by the scene suite), --policy-run (eval suite); adds --robot-sdf and --tables.
+"""
 
 from __future__ import annotations
 
 import argparse
+import statistics
+import time
 
 import torch
 
@@ -12,18 +25,108 @@ from samp.data.binding import DatasetBinding
 from .common import HEADER, timeit, untrained_policy_system
 
 B = 50  # training batch size
+B_BATCHED = 100  # rollout batch of the evaluation
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
-    """None of its own: --anchors comes from the scene suite, --robot and --device from common."""
+    ap.add_argument("--robot-sdf", help="policy: a trained robot SDF artifact for the untrained policy networks")
+    ap.add_argument("--tables", type=int, default=None,
+                    help="policy: joint angles per robot-SDF table (0: exact; default: the system's own)")
 
 
-def _time_n_e(system, robot, scenes: list, n_e: int, g: torch.Generator, device: torch.device) -> tuple[float, ...]:
-    """(grouped, random) seconds per training step of B samples and seconds per policy step (B = 1), at n_e."""
+def _median_ms(fn, repeats: int = 50) -> float:
+    """Median wall milliseconds of single calls (one call is what a rollout step pays)."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
+    """Milliseconds of each stage of one step at B = len(q), and of the whole `SAMPStepPolicy` step."""
+    from samp.policy.network import goal_features, normalize, sample_by_scene
+    from samp.policy.step import SAMPStepPolicy
+
+    robot, rsdf, net, tables = system.robot, system.robot_sdf, system.net, system.robot_sdf_tables
+    with torch.inference_mode():
+        poses = robot.link_poses(q)
+        points = robot.transform_points(q, poses)
+        d = rsdf.at_robot_points(q, points, poses, tables)
+        u_t, u_g = normalize(q, system.limits), normalize(q_goal, system.limits)
+        env = sample_by_scene(features, scene, points, bounds).transpose(1, 2)
+        n = len(q)
+        width = net.fusion[0].in_features
+        parts = {
+            "fk (link poses)": _median_ms(lambda: robot.link_poses(q)),
+            "robot points": _median_ms(lambda: robot.transform_points(q, poses)),
+            "robot SDF": _median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables)),
+            "feature sampling": _median_ms(lambda: sample_by_scene(features, scene, points, bounds)),
+            "PointNet": _median_ms(lambda: net.point_mlp(torch.cat([points, d[..., None]], dim=-1)).amax(dim=1)),
+            "MLPs": _median_ms(lambda: (net.env_mlp(torch.cat([env, d[..., None]], dim=-1).reshape(n, -1)),
+                                        net.config_mlp(goal_features(u_t, u_g, net.cfg.goal_features)),
+                                        net.fusion(q.new_zeros(n, width)))),
+        }
+        exact = _median_ms(lambda: rsdf.at_robot_points(q, points, poses, 0)) if tables else parts["robot SDF"]
+    policy = SAMPStepPolicy(system)
+    env_batch = _env(system, features.shape[0], scene)
+    policy.reset(env_batch)
+    step = _median_ms(lambda: policy.step(q, q_goal, env_batch))
+    return {**parts, "other": step - sum(parts.values()), "step": step, "robot SDF exact": exact}
+
+
+def _env(system, scenes: int, scene_index: torch.Tensor):
+    from samp.policy.interface import EnvBatch
+
+    bounds = torch.tensor([system.bounds] * scenes, dtype=system.robot.dtype, device=system.device)
+    return EnvBatch(system.grids[:scenes], bounds, scene_index)
+
+
+def _generic_step_ms(system, q, q_goal, features, scene, bounds) -> float:
+    """The baseline: the same step through the general APIs (FK of every frame, the robot SDF's culled query
+    of arbitrary points), as a policy step was computed before the robot-point specialisations."""
+    from samp.policy.network import denormalize, normalize
+
+    robot, rsdf = system.robot, system.robot_sdf
+
+    def step():
+        points = robot.transform_points(q)
+        fk = robot.fk(q)  # the query's own FK of every link
+        torch.stack([fk[name] for name in rsdf.link_names], dim=1)
+        d = rsdf.query(points, q)
+        u = system.net(normalize(q, system.limits), normalize(q_goal, system.limits), points, d, features, scene, bounds)
+        return denormalize(u, system.limits)
+
+    with torch.inference_mode():
+        return _median_ms(step, repeats=20)
+
+
+def _systems(args, device) -> list[tuple[str, object, int]]:
+    """(label, system, n_e) to time: the trained run, or the untrained quickstart and paper-width networks."""
+    from samp.robot import load_robot
+
+    if args.policy_run:
+        from samp.policy import load_system
+        from samp.paths import find_checkpoint
+
+        system = load_system(find_checkpoint(args.policy_run)).to(device)
+        return [(f"trained ({args.policy_run})", system, system.n_e)]
+    robot = load_robot(args.robot)
+    out = []
+    for i, n_e in enumerate(args.anchors):
+        quick = i == 0
+        model = {"point_hidden": [32, 64, 128]} if quick else {}
+        system = untrained_policy_system(robot, args.robot, "robot_sdf_hash_small" if quick else "robot_sdf_hash",
+                                         model=model, artifact=args.robot_sdf).to(device)
+        out.append((f"{'quickstart' if quick else 'paper'}-width network", system, n_e))
+    return out
+
+
+def _time_training(system, robot, scenes: list, g: torch.Generator, device: torch.device) -> tuple[float, float]:
+    """Seconds per training step of B samples: scene-grouped (2 scenes) and random (~8 scenes) batches."""
     lo, hi = robot.joint_limits.float().T
-    bounds = scenes[0].bounds
-    grids = torch.stack([s.anchor_grid(n_e) for s in scenes])
-    system.bind(DatasetBinding(robot.name, robot.asset_hash, "bench", n_e, bounds, grids))
     q = (lo + (hi - lo) * torch.rand(B, robot.dof, generator=g)).to(device)
     batch = {"q": q, "q_next": q + 0.01, "q_goal": q.flip(0)}
     opt = torch.optim.AdamW(system.net.parameters(), lr=1e-4)
@@ -34,41 +137,66 @@ def _time_n_e(system, robot, scenes: list, n_e: int, g: torch.Generator, device:
         loss.backward()
         opt.step()
 
+    system.train()
     grouped = torch.arange(B, device=device) * 2 // B  # 2 scenes
     plain = torch.randint(0, len(scenes), (B,), generator=g).to(device)  # ~8 scenes
     t_grouped = timeit(lambda: step(grouped), device, min_time=0.0, repeats=3)
     t_plain = timeit(lambda: step(plain), device, min_time=0.0, repeats=3)
     system.eval()
-    with torch.no_grad():
-        features = system.encode(system.grids[:1])
-        zero = torch.zeros(1, dtype=torch.long, device=device)
-        t_infer = timeit(lambda: system.predict(q[:1], q[1:2], features, zero, bounds), device, min_time=0.0, repeats=5)
-    system.train()
-    return t_grouped, t_plain, t_infer
+    return t_grouped, t_plain
 
 
 def run(args) -> tuple[dict, list[list]]:
-    """SAMP policy training throughput and per-step inference at several n_e; scene-grouped batches
-    (2 scenes per batch of 50) against plain random batches over 8 scenes as the ratio baseline."""
+    """Per configuration: the step's stages at B = 1, the step against the generic path, the batched step, and
+    (untrained networks only) training samples per second, scene-grouped against random batches."""
     import resource
 
-    from samp.robot import load_robot
     from samp.scene import generate_scene
 
     device = torch.device(args.device)
-    robot = load_robot(args.robot)
-    # An untrained robot SDF of the default architecture: its cost is that of a trained one.
-    system = untrained_policy_system(robot, args.robot).to(device)
     g = torch.Generator().manual_seed(0)
     scenes = [generate_scene(["tabletop", "shelf", "cabinet", "blocks"][i % 4], seed=i) for i in range(8)]
     metrics, rows = {}, []
-    for n_e in args.anchors:
-        t_grouped, t_plain, t_infer = _time_n_e(system, robot, scenes, n_e, g, device)
-        metrics.update({f"n{n_e}/train_samples_per_s": B / t_grouped, f"n{n_e}/train_samples_per_s_random": B / t_plain,
-                        f"n{n_e}/grouped_speedup": t_plain / t_grouped, f"n{n_e}/inference_ms": 1e3 * t_infer})
-        rows.append([f"train n_e={n_e} (B=50)", f"{B / t_grouped:.0f} samples/s", f"{B / t_plain:.0f} samples/s (random)",
-                     f"{t_plain / t_grouped:.2f}x"])
-        rows.append([f"  one policy step n_e={n_e}", f"{1e3 * t_infer:.1f} ms", "", ""])
+    for label, system, n_e in _systems(args, device):
+        robot = system.robot
+        if args.tables is not None:
+            system.robot_sdf_tables = args.tables
+        grids = torch.stack([s.anchor_grid(n_e) for s in scenes])
+        if system.binding is None or system.grids is None:
+            bounds = system.bounds or scenes[0].bounds
+            system.bind(DatasetBinding(robot.name, robot.asset_hash, "bench", n_e, bounds, grids))
+        system.eval()
+        lo, hi = robot.joint_limits.float().T
+        qs = (lo + (hi - lo) * torch.rand(B_BATCHED + 1, robot.dof, generator=g)).to(device)
+        q, q_goal = qs[:1], qs[1:2]
+        with torch.inference_mode():
+            features = system.encode(system.grids[:1])
+            feats_all = system.encode(system.grids)
+        zero = torch.zeros(1, dtype=torch.long, device=device)
+        key = f"n{n_e}"
+        stages = _stages(system, q, q_goal, features, zero, system.bounds)
+        generic = _generic_step_ms(system, q, q_goal, features, zero, system.bounds)
+        many = torch.arange(B_BATCHED, device=device) % len(scenes)
+        batched = _stages(system, qs[:B_BATCHED], qs[1:], feats_all, many, system.bounds)["step"]
+        metrics.update({f"{key}/step_b1_ms": stages["step"], f"{key}/generic_step_b1_ms": generic,
+                        f"{key}/step_speedup": generic / stages["step"], f"{key}/step_b{B_BATCHED}_ms": batched,
+                        f"{key}/batched_steps_per_s": B_BATCHED * 1e3 / batched,
+                        f"{key}/robot_sdf_tables": system.robot_sdf_tables,
+                        **{f"{key}/stage/{k}_ms": v for k, v in stages.items()}})
+        rows.append([f"{label}, n_e={n_e}: step B=1", f"{stages['step']:.2f} ms", f"{generic:.2f} ms (generic)",
+                     f"{generic / stages['step']:.1f}x"])
+        for k, v in stages.items():
+            if k != "step":
+                rows.append([f"  {k}" + (f" (tables K={system.robot_sdf_tables})" if k == "robot SDF" else ""),
+                             f"{v:.3f} ms", "", ""])
+        rows.append([f"  step B={B_BATCHED} (one call, {len(scenes)} scenes)", f"{batched:.1f} ms",
+                     f"{B_BATCHED * 1e3 / batched:.0f} problem-steps/s", ""])
+        if not args.policy_run:
+            t_grouped, t_plain = _time_training(system, robot, scenes, g, device)
+            metrics.update({f"{key}/train_samples_per_s": B / t_grouped, f"{key}/train_samples_per_s_random": B / t_plain,
+                            f"{key}/grouped_speedup": t_plain / t_grouped})
+            rows.append([f"  train (B={B})", f"{B / t_grouped:.0f} samples/s", f"{B / t_plain:.0f} samples/s (random)",
+                         f"{t_plain / t_grouped:.2f}x"])
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     metrics["peak_rss_mb"] = peak
     if device.type == "cuda":

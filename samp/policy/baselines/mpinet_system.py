@@ -18,6 +18,7 @@ from samp.names import BATCH_GOAL, BATCH_NEXT, BATCH_Q, BATCH_SCENE
 from samp.policy.base import PolicySystemBase
 from samp.policy.losses import match_loss
 from samp.policy.network import denormalize, normalize, sample_by_scene
+from samp.policy.plan import Plannable
 
 __all__ = ["MPiNetStepPolicy", "MPiNetSystem", "hinge_collision_loss", "scene_obstacle_points"]
 
@@ -90,7 +91,7 @@ class MPiNetSystem(PolicySystemBase, kind="mpinet"):
         return MPiNetStepPolicy(self)
 
 
-class MPiNetStepPolicy:
+class MPiNetStepPolicy(Plannable):
     """A trained `MPiNetSystem` as a `StepPolicy` (samp.policy.interface): `reset` turns the batch's grids into obstacle
     points once (timed, like SAMP's grid encoding), `step` predicts q_{t+1}."""
 

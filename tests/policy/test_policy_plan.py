@@ -1,0 +1,175 @@
+"""A trained SAMP policy outside the evaluation: a few real training steps, `load_policy(run_dir)`, `step`
+against the network fed by the generic robot-SDF query (an independent path), `plan` replayed step by
+step and judged by the float64 robot, the policy's refusals, `examples/plan.py`, and the device option."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from samp.eval.checks import ee_poses, exact_robot, goal_errors
+from samp.policy import load_policy
+from samp.policy.interface import EnvBatch
+from samp.policy.network import denormalize, normalize
+from samp.policy.system import PolicySystem
+
+REPO = Path(__file__).resolve().parents[2]
+SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
+
+
+def _payload(robot) -> dict:
+    """A small hash-grid robot SDF in the artifact format, its weights scaled up so that its values (and so
+    the pairs the robot-point query must evaluate) are far from zero."""
+    from samp.robot_sdf.artifact import describe, net_spec
+    from samp.robot_sdf.model import UnifiedHashSDF
+    from samp.robot_sdf.samples import link_normalisation
+
+    torch.manual_seed(0)
+    kwargs = {"num_links": len(robot.link_names), "encoding": {"levels": 4, "log2_table_size": 10, "finest": 64},
+              "hidden": [16]}
+    net = UnifiedHashSDF(**kwargs)
+    with torch.no_grad():
+        for table in net.encoder.tables:
+            table.uniform_(-1, 1)
+    centres, scales = link_normalisation(robot, 0.02)
+    info = describe(robot, net_spec(net, kwargs), "test", torch.tensor(centres), torch.tensor(scales))
+    return {"info": info, "state_dict": net.state_dict(), "artifact_id": "test"}
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory, tiny_datamodule, robots):
+    """A run folder holding a checkpoint of a SAMP policy trained for a few steps (real Lightning fit)."""
+    import pytorch_lightning as pl
+
+    dm = tiny_datamodule(8)
+    system = PolicySystem(robot="panda", robot_sdf_payload=_payload(robots["panda"]), model=SMALL_NET)
+    system.bind(dm.binding)
+    trainer = pl.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
+                         enable_progress_bar=False, enable_model_summary=False)
+    trainer.fit(system, dm)
+    folder = tmp_path_factory.mktemp("run")
+    trainer.save_checkpoint(folder / "checkpoints" / "last.ckpt")
+    return folder
+
+
+def _problem(policy, seed: int = 0):
+    from samp.expert import sample_problems
+    from samp.scene import generate_scene
+
+    scene = generate_scene("tabletop", seed=11, bounds=policy.system.bounds)
+    exact = exact_robot(policy.robot)
+    return scene, next(p for p in sample_problems(exact, scene, 10, seed=seed) if p.q_goal is not None)
+
+
+def test_step_is_the_network_fed_by_the_generic_robot_sdf_query(run_dir):
+    policy = load_policy(run_dir, robot_sdf_tables=0)
+    system = policy.system
+    scene, problem = _problem(policy)
+    env = policy._environment(scene)
+    policy.reset(env)
+    g = torch.Generator().manual_seed(0)
+    lo, hi = system.robot.joint_limits.float().T
+    q, q_goal = (lo + (hi - lo) * torch.rand(2, 5, 7, generator=g)).unbind(0)
+    got = policy.step(q, q_goal, EnvBatch(env.grids, env.bounds, torch.zeros(5, dtype=torch.long)))
+    with torch.no_grad():  # the oracle: FK of every frame and the robot SDF's culled query of arbitrary points
+        points = system.robot.transform_points(q)
+        d = system.robot_sdf.query(points, q)
+        features = system.net.encode_scenes(env.grids)
+        u = system.net(normalize(q, system.limits), normalize(q_goal, system.limits), points, d, features,
+                       torch.zeros(5, dtype=torch.long), system.bounds)
+    assert torch.allclose(got, denormalize(u, system.limits), atol=1e-5)
+
+
+def test_plan_replays_step_by_step_and_judges_the_goal_like_the_evaluation(run_dir):
+    policy = load_policy(run_dir)
+    scene, problem = _problem(policy)
+    result = policy.plan(scene, problem.q_start, problem.q_goal, max_steps=12)
+    traj = result.trajectory
+    assert traj.shape == (result.steps + 1, 7) and np.allclose(traj[0], problem.q_start)
+    assert result.termination in ("reached", "stalled", "max_steps") and len(result.step_times) == result.steps
+    env = policy._environment(scene)
+    policy.reset(env)
+    goal = torch.as_tensor(problem.q_goal[None], dtype=torch.float32)
+    for t in range(result.steps):  # every waypoint is the policy's step from the one before
+        q_next = policy.step(torch.as_tensor(traj[t][None], dtype=torch.float32), goal, env)
+        assert np.allclose(q_next[0].double().numpy(), traj[t + 1], atol=1e-5)
+    exact = exact_robot(policy.robot)
+    pos, rot = goal_errors(ee_poses(exact, traj[-1:]), ee_poses(exact, problem.q_goal[None]))
+    assert result.position_error == pytest.approx(pos[0], abs=1e-4)
+    assert result.reached == (pos[0] < 0.02 and rot[0] < 15.0)
+    assert result.solution_time == pytest.approx(result.setup_time + sum(result.step_times))
+    # a goal the start already meets: reached at once, no step taken
+    at_goal = policy.plan(scene, problem.q_goal, problem.q_goal)
+    assert at_goal.reached and at_goal.steps == 0
+
+
+def test_plan_takes_a_grid_and_refuses_what_the_policy_cannot_read(run_dir):
+    from samp.scene import generate_scene
+
+    policy = load_policy(run_dir)
+    scene, problem = _problem(policy)
+    from_grid = policy.plan(scene.anchor_grid(policy.n_e), problem.q_start, problem.q_goal, max_steps=5)
+    from_scene = policy.plan(scene, problem.q_start, problem.q_goal, max_steps=5)
+    assert np.allclose(from_grid.trajectory, from_scene.trajectory)
+    with pytest.raises(ValueError, match=r"\(16, 16, 16\) anchor grids"):
+        policy.plan(torch.zeros(20, 20, 20), problem.q_start, problem.q_goal)
+    lo, hi = np.asarray(policy.system.bounds)
+    other = generate_scene("tabletop", seed=11, bounds=[list(lo), list(hi + 0.1)])
+    with pytest.raises(ValueError, match="bounds"):
+        policy.plan(other, problem.q_start, problem.q_goal)
+    with pytest.raises(ValueError, match="q_goal must be 7 finite joint angles"):
+        policy.plan(scene, problem.q_start, problem.q_goal[:6])
+    with pytest.raises(ValueError, match="q_start must be 7 finite"):
+        policy.plan(scene, np.full(7, np.nan), problem.q_goal)
+
+
+def test_step_refuses_grids_the_policy_was_not_trained_on(run_dir):
+    from samp.policy import SAMPStepPolicy, load_system
+
+    system = load_system(run_dir)
+    policy = SAMPStepPolicy(system)
+    bounds = torch.tensor([system.bounds], dtype=torch.float32)
+    with pytest.raises(ValueError, match="n_e = 16"):
+        policy.reset(EnvBatch(torch.zeros(1, 20, 20, 20), bounds, torch.zeros(1, dtype=torch.long)))
+    with pytest.raises(ValueError, match="workspace bounds"):
+        policy.reset(EnvBatch(torch.zeros(1, 16, 16, 16), bounds + 0.5, torch.zeros(1, dtype=torch.long)))
+    system.binding = None
+    with pytest.raises(ValueError, match="never fitted"):
+        SAMPStepPolicy(system)
+
+
+def test_example_plan_script_runs(run_dir):
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    out = subprocess.run([sys.executable, str(REPO / "examples" / "plan.py"), str(run_dir), "3"], capture_output=True,
+                         text=True, timeout=300, env=env, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    assert "steps: (" in out.stdout and "goal error" in out.stdout
+    assert len((REPO / "examples" / "plan.py").read_text().splitlines()) <= 20
+
+
+def test_device_option(run_dir):
+    from samp.device import resolve_device
+
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert resolve_device("cpu") == torch.device("cpu")
+    with pytest.raises(ValueError, match="auto, cpu or cuda"):
+        resolve_device("tpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="sees no CUDA device"):
+            load_policy(run_dir, device="cuda")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_step_and_rollout_match_the_cpu(run_dir):
+    cpu, gpu = load_policy(run_dir, device="cpu"), load_policy(run_dir, device="cuda")
+    assert gpu.robot.device.type == "cuda"
+    scene, problem = _problem(cpu)
+    a = cpu.plan(scene, problem.q_start, problem.q_goal, max_steps=10)
+    b = gpu.plan(scene, problem.q_start, problem.q_goal, max_steps=10)
+    assert b.steps == a.steps and np.allclose(a.trajectory, b.trajectory, atol=1e-3)

@@ -1,0 +1,39 @@
+"""`SerialFK` (`Robot.link_poses` for serial arms) against pytorch-kinematics' general FK of every frame, in
+float64 and float32, with gradients; and `transform_points` from given poses (both of its paths)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from samp.robot import load_robot
+
+
+def _q(robot, count: int, dtype) -> torch.Tensor:
+    lo, hi = robot.joint_limits.to(dtype).T
+    return lo + (hi - lo) * torch.rand(count, robot.dof, generator=torch.Generator().manual_seed(0), dtype=dtype)
+
+
+@pytest.mark.parametrize("name", ["panda", "iiwa", "xarm6"])
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-12), (torch.float32, 1e-5)])
+def test_link_poses_equal_the_general_fk(name, dtype, tol, _isolated_cache):
+    robot = load_robot(name, dtype=dtype)
+    assert robot._serial is not None
+    q = _q(robot, 32, dtype)
+    general = robot.fk(q)  # pytorch-kinematics over every frame
+    expected = torch.stack([general[link] for link in robot.link_names], dim=1)
+    assert torch.allclose(robot.link_poses(q), expected, atol=tol, rtol=0)
+
+
+@pytest.mark.parametrize("count", [3, 20])  # one gather per point (B <= 8), or one product per link run
+def test_points_from_poses_and_their_gradient(count, _isolated_cache):
+    robot = load_robot("panda", dtype=torch.float64)
+    q = _q(robot, count, torch.float64).requires_grad_()
+    fk = robot.fk(q)
+    oracle = torch.stack([fk[robot.point_link_names[i]][:, :3, :3] @ robot.points[m] + fk[robot.point_link_names[i]][:, :3, 3]
+                          for m, i in enumerate(robot.point_links.tolist())], dim=1)
+    points = robot.transform_points(q, robot.link_poses(q))
+    assert torch.allclose(points, oracle, atol=1e-12)
+    (g,) = torch.autograd.grad(points.square().sum(), q)
+    (g_oracle,) = torch.autograd.grad(oracle.square().sum(), q)
+    assert torch.allclose(g, g_oracle, atol=1e-9)

@@ -127,6 +127,8 @@ STEPS: list[tuple[str, object]] = [
     ("rerun runs/quickstart/<timestamp>/eval/recording.rrd", File("{run}/eval/recording.rrd")),
     ("xdg-open runs/quickstart/<timestamp>/plots/summary.png", File("{run}/plots/summary.png")),
     ("python -m samp.runs show runs/quickstart/<timestamp>", Run("python -m samp.runs show {run}", prints=["protocol"])),
+    ("python examples/plan.py runs/quickstart/<timestamp> [SEED]",
+     Run("python {repo}/examples/plan.py {run} 3", prints=[" steps: "])),
     # Robot SDFs: the hash grid, then the NN-SDF baseline under the same name
     ("python -m samp.train experiment=robot_sdf_panda",
      Run(f"python -m samp.train experiment=robot_sdf_panda {SDF_RUN}", ["runs/robot_sdf_panda/*/robot_sdf.pt"])),

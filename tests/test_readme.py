@@ -112,7 +112,7 @@ STEPS: list[tuple[str, object]] = [
      Run("python -m samp.data.shards -m +dataset=smoke dataset.seed=5 dataset.name=shards num_shards=2 "
          "'shard=range(0,2)' hydra/launcher=shards_joblib", ["datasets/shards/*/manifest.json"])),
     ("python -m samp.data merge dataset=paper",
-     Run("python -m samp.data merge dataset=smoke dataset.seed=5 dataset.name=shards", prints=["already generated"])),
+     Run("python -m samp.data merge dataset=smoke dataset.seed=5 dataset.name=shards", prints=["already merged into"])),
     ("python -m samp.data.shards -m +dataset=paper num_shards=40 'shard=range(0,40)' workers=8 "
      "hydra/launcher=shards_slurm hydra.launcher.partition=NAME", Skip(SLURM + " (composed by tests/data)")),
     # The demo: dataset found, the small robot SDF built, the policy trained and evaluated

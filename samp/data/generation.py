@@ -204,20 +204,11 @@ def _write_json(path: Path, data: dict) -> None:
 # ------------------------------------------------------------------------------------------ shards
 def finished_dataset(spec: DatasetSpec, root: Path | None = None) -> Path | None:
     """The newest finished dataset of `spec`'s name made from exactly this spec (same config hash), or None."""
-    from samp.data.registry import read_manifest
+    from samp.data.registry import list_datasets
 
-    folder = Path(root or datasets_root()) / spec.name
-    found = []
-    for manifest in sorted(folder.glob("*/manifest.json")) if folder.is_dir() else []:
-        if manifest.parent.name.startswith("."):
-            continue
-        try:
-            m = read_manifest(manifest.parent, check_sizes=False)
-        except Exception:  # noqa: BLE001 - an unreadable dataset is not the one asked for; verify names it
-            continue
-        if m.get("config_hash") == spec.config_hash():
-            found.append((str(m.get("created", "")), manifest.parent))
-    return max(found)[1] if found else None
+    made = [d for d in list_datasets(Path(root) if root else None)
+            if d["name"] == spec.name and d.get("config_hash") == spec.config_hash()]
+    return Path(max(made, key=lambda d: d["created"])["path"]) if made else None
 
 
 def _already_there(spec: DatasetSpec, root: Path | None, work: Path) -> Path | None:
@@ -366,23 +357,16 @@ def _merge_lock(work: Path, name: str):
 
 def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
     """The dataset this spec was merged into (its work folder is gone), or None."""
-    from samp.data.registry import list_datasets
-
-    made = [d for d in list_datasets(root) if d["name"] == spec.name and d.get("config_hash") == spec.config_hash()]
-    if not made:
-        return None
-    newest = max(made, key=lambda d: d["created"])
-    print(f"{spec.name}: already merged into {newest['name']}@{newest['id']}")
-    return Path(newest["path"])
+    done = finished_dataset(spec, root)
+    if done is not None:
+        print(f"{spec.name}: already merged into {spec.name}@{done.name}")
+    return done
 
 
 def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob]) -> Path:
     from samp.provenance import code_version, package_versions
 
     missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
-    done = _already_there(spec, root, work) if missing else None
-    if done is not None:  # merged already (generate merges when the last scene is done)
-        return done
     if missing:
         raise GenerationError(f"cannot merge {spec.name!r}: {len(missing)} of {len(jobs)} scenes are not generated "
                               f"yet (indices {missing[:20]}{' ...' if len(missing) > 20 else ''}) in {work}; run "

@@ -194,7 +194,7 @@ def test_a_finished_dataset_generated_again_is_found_not_replanned(tiny, capsys)
                      "merge"], lines
     assert not work_dir(load_spec(TINY), root).exists(), "generating again started planning"
     assert merge(TINY, root=root) == folder
-    assert "already generated" in capsys.readouterr().out
+    assert f"already merged into tiny@{folder.name}" in capsys.readouterr().out
     assert {f.name: f.stat().st_mtime_ns for f in folder.iterdir()} == before
     other = dict(TINY, seed=8)  # another spec of the same name is not "found"
     with pytest.raises(GenerationError, match="not generated yet"):

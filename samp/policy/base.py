@@ -84,8 +84,11 @@ class PolicySystemBase(pl.LightningModule):
 
     @property
     def limits(self) -> torch.Tensor:
-        """(n, 2) joint limits, radians, on the system's device."""
-        return self.robot.joint_limits.to(self.device, torch.float32)
+        """(n, 2) joint limits, radians, float32 on the system's device (converted once per device)."""
+        cached = self.__dict__.get("_limits32")
+        if cached is None or cached.device != self.device:
+            cached = self.__dict__["_limits32"] = self.robot.joint_limits.to(self.device, torch.float32)
+        return cached
 
     @property
     def n_e(self) -> int | None:

@@ -1,10 +1,11 @@
-"""`eval` suite: rollouts per second of the batched engine (--problems problems over two scenes, grids at --n-e,
-the straight-line policy, or --policy-run RUN_DIR's trained policy at its own n_e) and of a full evaluation with
-pybullet checks; baseline: one problem at a time. The policy's per-problem solution time against the expert's
-planning time on --expert-problems of them.
+"""`eval` suite: rollouts per second of the batched engine (--problems problems over two scenes, or spread over
+the standing benchmark's unseen scenes with --benchmark NAME; grids at --n-e, the straight-line policy, or
+--policy-run RUN_DIR's trained policy at its own n_e) and of a full evaluation with pybullet checks; baseline: one
+problem at a time. The policy's per-problem solution time (B = 1) against the expert's planning time, planned
+afresh with OMPL in the same run, on --expert-problems of them.
 
-Adds --problems (also read by the perception suite), --n-e (also read by the baselines suite), --expert-problems
-and --policy-run."""
+Adds --problems (also read by the perception suite), --n-e (also read by the baselines suite), --expert-problems,
+--policy-run (also read by the policy suite) and --benchmark."""
 
 from __future__ import annotations
 
@@ -23,6 +24,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--n-e", type=int, default=100, help="eval: anchors per axis of the grids handed to the policy")
     ap.add_argument("--expert-problems", type=int, default=10, help="eval: problems the expert plans afresh")
     ap.add_argument("--policy-run", help="eval: a trained policy's run folder (default: the straight-line policy)")
+    ap.add_argument("--benchmark", help="eval: take the problems from this standing benchmark (e.g. unseen; built "
+                    "when missing) instead of two generated scenes")
 
 
 def _load_policy(args, device: torch.device):
@@ -51,24 +54,35 @@ def _median_time(fn: Callable, repeats: int) -> tuple[float, object]:
     return statistics.median(times), out
 
 
-def _expert_times(exact, scenes: list, subset: list) -> list[float]:
-    """The expert's planning time for each problem of `subset`, one planner per scene."""
+def _expert_times(exact, subset: list) -> list[float]:
+    """The expert's planning time for each problem of `subset`, planned afresh, one planner per scene."""
     from samp.expert import ExpertPlanner
 
-    expert_times = []
-    for scn in scenes:
-        mine = [p for p in subset if p.scene is scn]
-        if mine:
-            with ExpertPlanner(exact, scn) as planner:
-                expert_times += [planner.plan(p.q_start, p.q_goal, seed=0).stats["planning_time"] for p in mine]
+    expert_times, by_scene = [], {}
+    for p in subset:
+        by_scene.setdefault(id(p.scene), []).append(p)
+    for mine in by_scene.values():
+        with ExpertPlanner(exact, mine[0].scene) as planner:
+            expert_times += [planner.plan(p.q_start, p.q_goal, seed=0).stats["planning_time"] for p in mine]
     return expert_times
 
 
+def _problems(args, exact) -> list:
+    """--problems problems: from the benchmark's stored ones (spread over its scenes), or two generated scenes."""
+    if args.benchmark:
+        from samp.eval import problems_from_dataset
+        from samp.eval.benchmark import open_benchmark
+
+        bench = open_benchmark(args.benchmark)
+        return problems_from_dataset(bench, "test", args.problems, seed=0)
+    return bench_problems(exact, bench_scenes(), args.problems)[:args.problems]
+
+
 def _report(args, label: str, n: int, t: dict, batched: list, single: list, full: dict,
-            expert_times: list[float], subset: list) -> tuple[dict, list[list]]:
+            expert_times: list[float], rows: list[int]) -> tuple[dict, list[list]]:
     """Metrics and table rows for `n` problems from the timings `t` (batched, single, full, full_single: seconds
-    for all of them), the rollout results and the expert's planning times on `subset`."""
-    policy_times = [r.solution_time for r in single[:len(subset)]]
+    for all of them), the rollout results and the expert's planning times on the problems `rows`."""
+    policy_times = [single[i].solution_time for i in rows]
     steps = [len(r.trajectory) - 1 for r in batched]
     m = full["metrics"]["all"]
     step_batched = statistics.mean(s for r in batched for s in r.step_times)
@@ -90,7 +104,7 @@ def _report(args, label: str, n: int, t: dict, batched: list, single: list, full
              f"{n / t['full_single']:.1f}/s one at a time", f"{t['full_single'] / t['full']:.1f}x"],
             ["policy step call", f"{1e3 * step_batched:.2f} ms for B<={n}", f"{1e3 * step_single:.2f} ms for B=1",
              f"{step_single * n / step_batched:.1f}x per problem"],
-            [f"solution time, {len(subset)} problems", f"{policy_s * 1e3:.1f} ms policy (B=1)",
+            [f"solution time, {len(rows)} problems", f"{policy_s * 1e3:.1f} ms policy (B=1)",
              f"{expert_s:.3f} s expert planning", f"{expert_s / policy_s:.2f}x"],
             [f"{label} policy on these problems", f"success {m['success_rate']:.0%}",
              f"collision {m['collision_rate']:.0%}", ""]]
@@ -104,10 +118,9 @@ def run(args) -> tuple[dict, list[list]]:
 
     device = torch.device(args.device)
     exact = load_robot(args.robot, dtype=torch.float64)
-    scenes = bench_scenes()
-    problems = bench_problems(exact, scenes, args.problems)[:args.problems]
+    problems = _problems(args, exact)
     policy = _load_policy(args, device)
-    grids = {id(s): s.anchor_grid(args.n_e) for s in scenes}  # computed once (disk-cached), as a dataset's
+    grids = {id(p.scene): p.scene.anchor_grid(args.n_e) for p in problems}  # once per scene (disk-cached)
     source = lambda p, n_e: grids[id(p.scene)]  # noqa: E731
     batched_cfg, single_cfg = RolloutConfig(), RolloutConfig(batch_size=1)
     label = policy.name if args.policy_run else "straight"
@@ -120,5 +133,6 @@ def run(args) -> tuple[dict, list[list]]:
     t["full"], full = _median_time(lambda: evaluate(policy, problems, batched_cfg, grids=source), repeats)
     t["full_single"], _ = _median_time(lambda: evaluate(policy, problems, single_cfg, grids=source), repeats)
 
-    subset = problems[:args.expert_problems]
-    return _report(args, label, len(problems), t, batched, single, full, _expert_times(exact, scenes, subset), subset)
+    rows = list(range(0, len(problems), max(1, len(problems) // args.expert_problems)))[:args.expert_problems]
+    subset = [problems[i] for i in rows]  # spread over the scenes
+    return _report(args, label, len(problems), t, batched, single, full, _expert_times(exact, subset), rows)

@@ -1,7 +1,7 @@
 """Where samp finds its configs and keeps its caches, and how it fingerprints files.
 
-`SAMP_CONF_DIR` and `SAMP_CACHE_DIR` override the defaults (the repository's `conf/` and
-`$XDG_CACHE_HOME/samp`, i.e. `~/.cache/samp`).
+`SAMP_CONF_DIR`, `SAMP_CACHE_DIR` and `SAMP_RUNS_DIR` override the defaults (the repository's `conf/` and
+`$XDG_CACHE_HOME/samp`, i.e. `~/.cache/samp`, and `runs/`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 __all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "file_sha256", "find_checkpoint", "inside",
-           "resolve_asset"]
+           "resolve_asset", "runs_root"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PYBULLET_DATA_SCHEME = "pybullet_data://"
@@ -26,6 +26,12 @@ def conf_dir() -> Path:
             "(`pip install -e .`) or point SAMP_CONF_DIR at a folder with samp's `conf/` layout."
         )
     return path
+
+
+def runs_root() -> Path:
+    """Where run folders go: `$SAMP_RUNS_DIR`, else `runs/` in the repository (one definition for every
+    layer: the evaluation writes stand-alone results there too)."""
+    return Path(os.environ.get("SAMP_RUNS_DIR", REPO_ROOT / "runs"))
 
 
 def cache_dir(*parts: str) -> Path:

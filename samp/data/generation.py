@@ -202,11 +202,31 @@ def _write_json(path: Path, data: dict) -> None:
 
 
 # ------------------------------------------------------------------------------------------ shards
+def finished_dataset(spec: DatasetSpec, root: Path | None = None) -> Path | None:
+    """The newest finished dataset of `spec`'s name made from exactly this spec (same config hash), or None."""
+    from samp.data.registry import list_datasets
+
+    made = [d for d in list_datasets(Path(root) if root else None)
+            if d["name"] == spec.name and d.get("config_hash") == spec.config_hash()]
+    return Path(max(made, key=lambda d: d["created"])["path"]) if made else None
+
+
+def _already_there(spec: DatasetSpec, root: Path | None, work: Path) -> Path | None:
+    """A finished dataset of this spec when no generation of it is under way (its work folder is gone)."""
+    done = finished_dataset(spec, root)
+    if done is not None and not any(work.glob("*.mcap")):
+        print(f"{spec.name}: already generated from this spec as {spec.name}@{done.name} ({done}); nothing to plan "
+              "or merge", flush=True)
+        return done
+    return None
+
+
 def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shards: int = 1, workers: int = 1,
              root: Path | None = None, progress: bool = True) -> Path | None:
     """Generate the scenes of `shard` (None: all of them) with `workers` processes, resuming from any
     finished scene files. When every scene of the spec is done, merge into a dataset and return its
-    folder; otherwise (a shard of several) return None."""
+    folder; otherwise (a shard of several) return None. A spec generated before (a finished dataset of the
+    same config hash, no work under way) is found and returned, nothing planned."""
     from tqdm.auto import tqdm
 
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
@@ -215,6 +235,9 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     work = work_dir(spec, root)
+    done = _already_there(spec, root, work)
+    if done is not None:
+        return done
     work.mkdir(parents=True, exist_ok=True)
     _write_json(work / "spec.json", spec.resolved())
     for stale in work.glob("*.tmp"):  # left by a killed run
@@ -334,14 +357,10 @@ def _merge_lock(work: Path, name: str):
 
 def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
     """The dataset this spec was merged into (its work folder is gone), or None."""
-    from samp.data.registry import list_datasets
-
-    made = [d for d in list_datasets(root) if d["name"] == spec.name and d.get("config_hash") == spec.config_hash()]
-    if not made:
-        return None
-    newest = max(made, key=lambda d: d["created"])
-    print(f"{spec.name}: already merged into {newest['name']}@{newest['id']}")
-    return Path(newest["path"])
+    done = finished_dataset(spec, root)
+    if done is not None:
+        print(f"{spec.name}: already merged into {spec.name}@{done.name}")
+    return done
 
 
 def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob]) -> Path:

@@ -39,4 +39,9 @@ if __name__ == "__main__":
         check_overrides(sys.argv[1:])
     except ValueError as err:
         sys.exit(f"error: {err}")
+    import os
+
+    from samp.paths import REPO_ROOT
+
+    os.chdir(REPO_ROOT)  # Hydra's sweep folder (runs/data_shards/ unless SAMP_RUNS_DIR): from the repository, as elsewhere
     main()

@@ -4,8 +4,10 @@
 Evaluates a run's policy (or the expert, or the straight-line baseline) under the evaluation protocol
 (`samp.eval.report`): the stored evaluation problems of the run's dataset, per split (validation and
 training scenes, never trained on), and the standing benchmark of unseen scenes, with the expert and the
-straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (or `out`): metrics.json,
-metrics.md, problems.jsonl and recording.rrd. Settings: conf/eval.yaml (schema: samp/eval/config.py).
+straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (without a run:
+`<runs folder>/eval/PLANNER_DATASET@ID/`; or `out=DIR`): metrics.json, metrics.md, problems.jsonl and
+recording.rrd. An earlier evaluation there is kept and the new one goes beside it (`eval-2/`, ...), unless
+`overwrite=true`. Settings: conf/eval.yaml (schema: samp/eval/config.py).
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ USAGE = """usage: python -m samp.eval run=RUN_DIR [benchmark=unseen|null] [split
        python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] [key=value ...]
 Sections: the dataset's stored evaluation problems per split (val, train, test scenes) and the standing
 benchmark of unseen scenes, each with the expert and the straight line beside the planner.
-Writes RUN_DIR/eval/ (or out=DIR): metrics.json, metrics.md, problems.jsonl and recording.rrd."""
+Writes RUN_DIR/eval/ (or out=DIR): metrics.json, metrics.md, problems.jsonl and recording.rrd; an earlier
+evaluation in RUN_DIR/eval/ is kept and the new one goes to RUN_DIR/eval-2/ (overwrite=true replaces it)."""
 
 
 def _config(overrides: list[str]):
@@ -114,17 +117,26 @@ def _planner(cfg, run, manifest: dict):
 
 
 def _out_dir(cfg, run, label: str) -> Path:
+    """Where the files go: `out` as given, else `RUN/eval/` or `<runs folder>/eval/PLANNER_LABEL/`. A default
+    folder that already holds an evaluation is kept and this one goes beside it (`eval-2/`, `eval-3/`, ...)
+    unless `overwrite=true`; an `out` that holds one is refused unless `overwrite=true`."""
     from samp.names import EVAL_DIR, METRICS_JSON
+    from samp.paths import runs_root
 
     if cfg.out:
         out = output_path(Path(cfg.out) / METRICS_JSON).parent
-    elif run is not None:
-        out = run.path / EVAL_DIR
+        if (out / METRICS_JSON).exists() and not cfg.overwrite:
+            raise ValueError(f"{out / METRICS_JSON} exists from an earlier evaluation; pass overwrite=true to replace "
+                             "it, or leave out= away to write beside the run's evaluation")
     else:
-        out = output_path(Path("runs") / "eval" / f"{cfg.planner}_{label}" / METRICS_JSON).parent
-    if (out / METRICS_JSON).exists() and not cfg.overwrite:
-        raise ValueError(f"{out / METRICS_JSON} exists from an earlier evaluation; pass overwrite=true to replace it, "
-                         "or out=DIR to write elsewhere")
+        out = run.path / EVAL_DIR if run is not None else runs_root() / "eval" / f"{cfg.planner}_{label}"
+        if (out / METRICS_JSON).exists() and not cfg.overwrite:
+            first, k = out, 2
+            while (out.with_name(f"{first.name}-{k}") / METRICS_JSON).exists():
+                k += 1
+            out = out.with_name(f"{first.name}-{k}")
+            print(f"{first} holds an earlier evaluation, kept as it is; this one goes to {out} "
+                  "(overwrite=true replaces the earlier one instead)", flush=True)
     out.mkdir(parents=True, exist_ok=True)
     return out
 

@@ -43,10 +43,13 @@ class EvalCallback(pl.Callback):
         rollout: `RolloutConfig` keys (max_steps, tolerances, batch_size, ...).
         dirpath: where best.ckpt goes (default `<trainer.default_root_dir>/checkpoints`).
         save_best: write best.ckpt when the success rate improves.
+        root: the datasets folder `dataset` is looked up in (default: `$SAMP_DATASETS_DIR`, else datasets/;
+            conf/callbacks/eval.yaml passes the run's `paths.datasets_dir`).
     """
 
     def __init__(self, problems=32, every_k_epochs: int = 1, dataset: str | None = None, split: str = "val",
-                 seed: int = 0, rollout: dict | None = None, dirpath: str | None = None, save_best: bool = True):
+                 seed: int = 0, rollout: dict | None = None, dirpath: str | None = None, save_best: bool = True,
+                 root: str | None = None):
         super().__init__()
         if not isinstance(every_k_epochs, int) or every_k_epochs < 1:
             raise ValueError(f"every_k_epochs must be an integer >= 1, got {every_k_epochs!r}")
@@ -61,7 +64,7 @@ class EvalCallback(pl.Callback):
         # Outcomes only: one batch, no second pass one problem at a time for latencies.
         self.rollout = rollout if isinstance(rollout, RolloutConfig) else \
             rollout_config({"batch_size": None, "timed_problems": 0, **(rollout or {})})
-        self.dirpath, self.save_best = dirpath, save_best
+        self.dirpath, self.save_best, self.root = dirpath, save_best, root
         self._problems = None if isinstance(problems, int) else list(problems)
         self._count = problems if isinstance(problems, int) else None
         self._grids = None
@@ -75,7 +78,7 @@ class EvalCallback(pl.Callback):
             from samp.data import open_dataset
             from samp.eval.problems import dataset_grids, problems_from_dataset
 
-            ds = open_dataset(self.dataset)
+            ds = open_dataset(self.dataset, Path(self.root) if self.root else None)
             splits = ["val", "train"] if self.split == "both" else [self.split]
             self._problems = [p for s in splits for p in problems_from_dataset(ds, s, self._count, self.seed)]
             self._grids = dataset_grids(ds)

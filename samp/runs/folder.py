@@ -36,9 +36,9 @@ def _now() -> str:
 
 def runs_root() -> Path:
     """`$SAMP_RUNS_DIR`, else `runs/` in the repository."""
-    from samp.paths import REPO_ROOT
+    from samp.paths import runs_root as root
 
-    return Path(os.environ.get("SAMP_RUNS_DIR", REPO_ROOT / "runs"))
+    return root()
 
 
 class RunFolder:

@@ -104,12 +104,20 @@ def wandb_logger(run_dir: str, project: str, offline: bool = True, entity: str |
                        config=lineage_tags(folder.read()))
 
 
-def finish_loggers(loggers: list, record: dict, metrics: dict, step: int) -> None:
+def _numeric(metrics: dict) -> dict[str, float]:
+    return {k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+
+
+def finish_loggers(loggers: list, record: dict, metrics: dict, step: int, final: dict | None = None) -> None:
     """After training: log `metrics` not logged yet (the final evaluation) at `step`, and the lineage now
-    complete (dataset and robot SDF ids) as tags, to every logger."""
-    numeric = {k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
-    tags = lineage_tags(record)
+    complete (dataset and robot SDF ids) as tags, to every logger. `final` (the last values of the run)
+    goes to a CSV log that would otherwise stay empty: a run shorter than `log_every_n_steps`, without
+    validation or evaluation, still gets its metrics.csv."""
+    numeric, tags = _numeric(metrics), lineage_tags(record)
     for logger in loggers:
+        if isinstance(logger, CSVLogger) and not numeric and final and not logger.experiment.metrics \
+                and not (Path(logger.log_dir) / METRICS_CSV).is_file():
+            logger.log_metrics({"epoch": float(record.get("epochs") or 0), **_numeric(final)}, step=step)
         if numeric:
             logger.log_metrics(numeric, step=step)
         logger.save()

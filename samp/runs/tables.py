@@ -62,7 +62,9 @@ def write_table(prefix: Path, header: list[str], rows: list[list[str]], title: s
     """`<prefix>.md` (the title above the table, the note below it) and `<prefix>.csv` (replacing earlier
     ones: tables are derived from the runs)."""
     prefix.parent.mkdir(parents=True, exist_ok=True)
-    md, cs = prefix.with_suffix(".md"), prefix.with_suffix(".csv")
+    # Appended, not swapped in: a dotted key (`table_by_datamodule.n_e`) is no suffix to replace.
+    stem = prefix.name[:-len(prefix.suffix)] if prefix.suffix in (".md", ".csv") else prefix.name
+    md, cs = prefix.with_name(stem + ".md"), prefix.with_name(stem + ".csv")
     md.write_text((f"# {title}\n\n" if title else "") + markdown(header, rows) + (f"\n{note}\n" if note else ""))
     cs.write_text(to_csv(header, rows))
     return [md, cs]

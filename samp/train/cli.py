@@ -9,7 +9,7 @@ from pathlib import Path
 from samp.train.config import compose_train_config
 from samp.train.recipe import _resume_overrides, train
 
-__all__ = ["USAGE", "main"]
+__all__ = ["USAGE", "hydra_quoted", "interrupted_hint", "main"]
 
 USAGE = """usage: python -m samp.train experiment=NAME [key=value ...]        train a run (runs/<name>/<timestamp>/)
        python -m samp.train experiment=NAME [key=value ...] --cfg job|hydra|all [--resolve]
@@ -67,12 +67,22 @@ def _cfg_flags(argv: list[str]) -> tuple[str | None, bool | None, list[str]]:
 
 def _print_config(overrides: list[str], show: str, resolve: bool | None) -> None:
     """`--cfg`: the config a run would get (checked as for a run; interpolations resolved where they can be),
-    `hydra:` Hydra's own settings (as written), or both."""
+    `hydra:` Hydra's own settings (as written), or both. For a sweep (`-m`, `sweep=NAME`): its first member's."""
     from omegaconf import OmegaConf
 
     from samp.cli import compose, config_yaml
 
-    overrides = _resume_overrides([a for a in overrides if a not in ("-m", "--multirun")])
+    from samp.cli import canonical_overrides
+
+    sweep = any(a in ("-m", "--multirun") for a in overrides) or any(a.lstrip("+").startswith("sweep=")
+                                                                      for a in overrides)
+    overrides = [a for a in overrides if a not in ("-m", "--multirun")]
+    if sweep:  # a sweep: the config of its first member
+        from samp.train.sweep import _first_member
+
+        hydra_keys = [a for a in overrides if a.startswith("hydra")]
+        overrides = _first_member(canonical_overrides("train", overrides)) + hydra_keys
+    overrides = _resume_overrides(overrides)
     cfg = compose_train_config(overrides)
     if show in ("job", "all"):
         print(config_yaml(cfg, resolve), end="")
@@ -114,11 +124,35 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, Terminated) as err:  # run.json says interrupted
-        print(f"interrupted ({type(err).__name__}); continue with `python -m samp.train resume=RUN_DIR`",
-              file=sys.stderr)
+        print(interrupted_hint(err, getattr(err, "run_folder", None)), file=sys.stderr)
         return 143 if isinstance(err, Terminated) else 130
     _print_outputs(folder.path)
     return 0
+
+
+def hydra_quoted(value) -> str:
+    """`value` as the value of a Hydra override: as it is when plain, else double-quoted (a sweep member's
+    folder holds `=` and `,`, which Hydra's grammar reads as syntax)."""
+    import re
+
+    text = str(value)
+    if re.fullmatch(r"[\w/.\-~]+", text):
+        return text
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def interrupted_hint(err: BaseException, folder) -> str:
+    """What to do after an interrupted run: resume it when it has a checkpoint to resume from, else start
+    it again (`resume=` would refuse a run that stopped before its first checkpoint)."""
+    import shlex
+
+    what = f"interrupted ({type(err).__name__})"
+    if folder is None:
+        return f"{what} before its run folder existed: nothing to resume; start it again"
+    if folder.last_checkpoint.is_file():
+        return f"{what}; continue with `python -m samp.train {shlex.quote('resume=' + hydra_quoted(folder.path))}`"
+    return (f"{what} before its first checkpoint ({folder.last_checkpoint} does not exist), so it cannot be resumed; "
+            f"start it again (run.json in {folder.path} keeps the record, marked interrupted)")
 
 
 def _print_outputs(path: Path) -> None:

@@ -11,24 +11,78 @@ from pathlib import Path
 __all__ = ["prepare", "resolve_robot_sdf"]
 
 
+def _experiment_model(name: str) -> str | None:
+    """The `_target_` of the network the experiment `name` trains by default (None: no such experiment)."""
+    from samp.paths import conf_dir
+
+    if not (conf_dir() / "experiment" / f"{name}.yaml").is_file():
+        return None
+    from samp.train.config import compose_train_config
+
+    model = compose_train_config([f"experiment={name}"]).get("model") or {}
+    return model.get("_target_")
+
+
+def _candidates(folder: Path) -> list[dict]:
+    """The completed runs in `folder` that wrote a robot SDF artifact, newest first: path, id, network."""
+    from samp.robot_sdf.artifact import ARTIFACT_FILE, artifact_id
+    from samp.runs import RunFolder
+
+    found = []
+    for run in sorted(folder.glob("*/"), reverse=True):
+        record = RunFolder(run).read() if (run / ARTIFACT_FILE).is_file() else {}
+        if record.get("status") == "completed":
+            model = ((record.get("config") or {}).get("model") or {}).get("_target_")
+            found.append({"path": run, "id": record.get("robot_sdf_artifact_id") or artifact_id(run / ARTIFACT_FILE),
+                          "model": model})
+    return found
+
+
+def _listing(found: list[dict]) -> str:
+    return "; ".join(f"{c['path']} (id {c['id']}, {c['model'] or 'network not recorded'})" for c in found)
+
+
 def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
-    """A robot SDF reference -> its artifact or run folder: an existing path, or an experiment name under
-    the runs folder (its newest completed run that wrote `robot_sdf.pt`). FileNotFoundError otherwise."""
+    """A robot SDF reference -> its artifact or run folder.
+
+    REF is an existing path, an experiment name (`robot_sdf_panda`: its newest completed run that wrote
+    `robot_sdf.pt` and trained the network the experiment trains by default, so an NN-SDF run made with
+    `model=robot_sdf_nn` under the same name is never picked for it), or `NAME@ID` (the run of that name
+    whose artifact's content id starts with ID, whatever its network). A name whose runs trained several
+    kinds of network, with no experiment config to say which is meant, or an ID prefix matching several
+    artifacts, is refused with the candidates. FileNotFoundError when nothing matches."""
     from samp.robot_sdf.artifact import ARTIFACT_FILE
-    from samp.runs import RunFolder, runs_root
+    from samp.runs import runs_root
 
     path = Path(str(ref)).expanduser()
     if path.exists():
         return path
-    folder = Path(runs_dir) if runs_dir else runs_root()
-    for run in sorted((folder / str(ref)).glob("*/"), reverse=True):
-        if (run / ARTIFACT_FILE).is_file() and RunFolder(run).read().get("status") == "completed":
-            return run
-    robot = str(ref).removeprefix("robot_sdf_").split("_")[0] or "panda"
+    name, _, wanted_id = str(ref).partition("@")
+    folder = (Path(runs_dir) if runs_dir else runs_root()) / name
+    found = _candidates(folder)
+    if wanted_id:
+        matches = [c for c in found if str(c["id"]).startswith(wanted_id)]
+        if len(matches) > 1:
+            raise ValueError(f"robot SDF {ref!r} is ambiguous: {len(matches)} artifacts' ids start with {wanted_id!r}: "
+                             f"{_listing(matches)}. Give more digits of the id, or the run folder")
+        if matches:
+            return matches[0]["path"]
+        raise FileNotFoundError(f"no completed {name!r} run under {folder} has a robot SDF whose id starts with "
+                                f"{wanted_id!r}; there are: {_listing(found) or 'none'}")
+    kind = _experiment_model(name)
+    of_kind = [c for c in found if kind is None or c["model"] in (kind, None)]
+    if kind is None and len({c["model"] for c in of_kind}) > 1:
+        raise ValueError(f"robot SDF {ref!r} is ambiguous: its runs trained different networks and no "
+                         f"conf/experiment/{name}.yaml says which is meant: {_listing(of_kind)}. Give the run folder, "
+                         f"or {name}@ID with one of these ids")
+    if of_kind:
+        return of_kind[0]["path"]
+    robot = name.removeprefix("robot_sdf_").split("_")[0] or "panda"
+    other = f" (runs of other networks there, not taken by name: {_listing(found)})" if found else ""
     raise FileNotFoundError(f"no robot SDF {ref!r}: not a file or folder, and no completed run with {ARTIFACT_FILE} "
-                            f"under {folder / str(ref)}. Train one with `python -m samp.train "
-                            f"experiment=robot_sdf_{robot}`, pass build_missing.robot_sdf=true, or set "
-                            "system.robot_sdf to a run folder or artifact")
+                            f"of the network {kind or 'it trains'} under {folder}{other}. Train one with "
+                            f"`python -m samp.train experiment=robot_sdf_{robot}`, pass build_missing.robot_sdf=true, or "
+                            "set system.robot_sdf to a run folder, an artifact, or NAME@ID")
 
 
 def _buildable(ref: str, robot: str) -> bool:
@@ -44,14 +98,17 @@ def _robot_sdf(cfg) -> str:
 
     ref, runs_dir, build = str(cfg.system.robot_sdf), cfg.paths.runs_dir, cfg.build_missing
     try:
-        return str(resolve_robot_sdf(ref, runs_dir))
+        path = resolve_robot_sdf(ref, runs_dir)
     except FileNotFoundError:
         if not (build.robot_sdf and _buildable(ref, cfg.robot.name)):
             raise
-    overrides = [f"experiment={ref}", f"paths.runs_dir={runs_dir}", f"paths.datasets_dir={cfg.paths.datasets_dir}",
-                 *build.robot_sdf_overrides]
-    print(f"robot SDF {ref!r} is not trained yet: running {' '.join(overrides)}", flush=True)
-    return str(train(overrides).path)
+    else:
+        print(f"robot SDF {ref!r}: {path}", flush=True)
+        return str(path)
+    overrides = [f"experiment={ref}", *build.robot_sdf_overrides]
+    print(f"robot SDF {ref!r} is not trained yet: running {' '.join(overrides)} (runs in {runs_dir}, datasets in "
+          f"{cfg.paths.datasets_dir})", flush=True)
+    return str(train(overrides, paths={"runs_dir": runs_dir, "datasets_dir": cfg.paths.datasets_dir}).path)
 
 
 def _datasets_root(cfg) -> Path:

@@ -31,17 +31,20 @@ def _repo_path(path: str) -> Path:
     return p if p.is_absolute() else REPO_ROOT / p
 
 
-def _resume_overrides(overrides: list[str]) -> list[str]:
-    """`resume=RUN_DIR [key=value ...]`: the run's recorded overrides, then the new ones (which win)."""
+def _resume_overrides(overrides: list[str], resume: str | Path | None = None) -> list[str]:
+    """`resume=RUN_DIR [key=value ...]` (or `resume` given as data): the run's recorded overrides, then the
+    new ones (which win)."""
     from samp.runs import RunFolder
     from samp.runs.lineage import merge_overrides, override_key
 
-    resume = [o for o in overrides if override_key(o) == "resume"]
-    if not resume:
-        return overrides
-    from hydra.core.override_parser.overrides_parser import OverridesParser
+    path = resume
+    if path is None:
+        given = [o for o in overrides if override_key(o) == "resume"]
+        if not given:
+            return overrides
+        from hydra.core.override_parser.overrides_parser import OverridesParser
 
-    path = OverridesParser.create().parse_override(resume[-1]).value()  # unquoted, as Hydra reads it
+        path = OverridesParser.create().parse_override(given[-1]).value()  # unquoted, as Hydra reads it
     if path in (None, ""):
         return overrides
     folder = RunFolder(_repo_path(str(path)))
@@ -83,8 +86,14 @@ def _open_folder(cfg):
     return folder, None
 
 
-def train(overrides: list[str], **info):
-    """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there)."""
+def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: str | Path | None = None,
+          paths: dict | None = None, **info):
+    """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there).
+
+    Folders a caller already holds are passed as data, never spliced into override strings (a folder
+    name may hold `=`, `,`, quotes or spaces, which Hydra's override grammar would read): `run_dir` (a
+    new run in that folder), `resume` (continue that run) and `paths` (`{"runs_dir": ..., "datasets_dir":
+    ...}`, set after composition) act as the overrides of the same names."""
     import time
 
     import pytorch_lightning as pl
@@ -92,13 +101,22 @@ def train(overrides: list[str], **info):
     from omegaconf import OmegaConf, open_dict
 
     from samp.runs.distributed import is_rank_zero
+    from samp.runs.folder import Terminated
     from samp.runs.loggers import finish_loggers
     from samp.train.after_fit import after_fit
     from samp.train.prerequisites import prepare
 
-    overrides = _resume_overrides(list(overrides))
+    overrides = _resume_overrides(list(overrides), resume)
     cfg = compose_train_config(overrides)
     with open_dict(cfg):
+        for key, value in (paths or {}).items():
+            if key not in cfg.paths:
+                raise ValueError(f"paths has no key {key!r}; keys: {', '.join(cfg.paths)}")
+            cfg.paths[key] = str(value)
+        if run_dir is not None:
+            cfg.run_dir = str(run_dir)
+        if resume is not None:
+            cfg.resume = str(resume)
         cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
         cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
         prepare(cfg)  # before this run's folder exists: a robot SDF built here is a run of its own
@@ -115,31 +133,35 @@ def train(overrides: list[str], **info):
     # The CSV logger writes into the run folder, which already holds .hydra/ and run.json by design.
     warnings.filterwarnings("ignore", message="Experiment logs directory .* exists and is not empty")
     config = OmegaConf.to_container(cfg, resolve=True)
-    with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path),
-                       config=config, **info) if rank_zero else nullcontext(folder):
-        pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
-        datamodule = instantiate(cfg.datamodule)
-        system = instantiate(cfg.system)
-        callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
-        loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
-        trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
-        start = time.perf_counter()
-        with _safe_resume(ckpt, cfg):
-            trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None,
-                        weights_only=None if ckpt is None else not trusted(_trust(cfg)))
-        fit_s = time.perf_counter() - start + ((folder.read().get("fit_time_s") or 0.0) if ckpt else 0.0)
-        trainer.save_checkpoint(folder.last_checkpoint)
-        if not rank_zero:
-            return folder
-        metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-        folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step),
-                      epochs=int(trainer.current_epoch), fit_time_s=fit_s, metrics=metrics,
-                      robot_sdf_artifact_id=getattr(system, "robot_sdf_artifact_id", None))
-        evaluated = after_fit(cfg, system, datamodule, folder.path)
-        metrics.update(evaluated)
-        record = folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id")
-                               or folder.read().get("robot_sdf_artifact_id"))
-        finish_loggers(loggers, record, evaluated, step=int(trainer.global_step))
+    try:
+        with folder.record(experiment=cfg.name, seed=int(cfg.seed), overrides=overrides, run_dir=str(folder.path),
+                           config=config, **info) if rank_zero else nullcontext(folder):
+            pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
+            datamodule = instantiate(cfg.datamodule)
+            system = instantiate(cfg.system)
+            callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
+            loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
+            trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
+            start = time.perf_counter()
+            with _safe_resume(ckpt, cfg):
+                trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None,
+                            weights_only=None if ckpt is None else not trusted(_trust(cfg)))
+            fit_s = time.perf_counter() - start + ((folder.read().get("fit_time_s") or 0.0) if ckpt else 0.0)
+            trainer.save_checkpoint(folder.last_checkpoint)
+            if not rank_zero:
+                return folder
+            metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+            folder.update(dataset_id=getattr(datamodule, "dataset_id", None), steps=int(trainer.global_step),
+                          epochs=int(trainer.current_epoch), fit_time_s=fit_s, metrics=metrics,
+                          robot_sdf_artifact_id=getattr(system, "robot_sdf_artifact_id", None))
+            evaluated = after_fit(cfg, system, datamodule, folder.path)
+            metrics.update(evaluated)
+            record = folder.update(metrics=metrics, robot_sdf_artifact_id=metrics.get("robot_sdf_artifact_id")
+                                   or folder.read().get("robot_sdf_artifact_id"))
+            finish_loggers(loggers, record, evaluated, step=int(trainer.global_step), final=metrics)
+    except (KeyboardInterrupt, Terminated) as err:
+        err.run_folder = folder  # the command line says whether it can be resumed
+        raise
     return folder
 
 

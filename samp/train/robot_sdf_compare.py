@@ -1,10 +1,12 @@
 """Table III in one run: SAMP's hash grid, NN-SDF, RDF (N = 8) and RDF (N = 24) on the same samples.
 
-The two networks are trained by the ordinary recipe (`samp.train`, each in its own run folder, with the
-same experiment and overrides); the RDF models are fitted by least squares on the samples those runs
-used. All four are then evaluated together (`evaluate_methods`) into one comparison folder,
-`runs/robot_sdf_compare_<robot>/<timestamp>/`: robot_sdf_table.{md,json}, robot_sdf.rrd, the RDF
-artifacts and a run.json that names the runs and the dataset. `tools/bench.py robot_sdf` calls this.
+The two networks are trained by the ordinary recipe (`samp.train`, each in its own run folder inside the
+comparison's folder, with the same experiment and overrides; never under `runs/robot_sdf_<robot>/`, so the
+comparison does not change which robot SDF a later policy run resolves by name); the RDF models are fitted by
+least squares on the samples those runs used. All four are then evaluated together (`evaluate_methods`) into
+one comparison folder, `runs/robot_sdf_compare_<robot>/<timestamp>/`: robot_sdf_table.{md,json},
+robot_sdf.rrd, the RDF artifacts and a run.json that names the runs and the dataset. `tools/bench.py
+robot_sdf` calls this.
 """
 
 from __future__ import annotations
@@ -49,8 +51,10 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
         model = load_robot(robot, dtype=torch.float32)
         methods, runs, network_configs = {}, {}, {}
         for name in NETWORK_MODELS:
-            run = train([f"+experiment=robot_sdf_{robot}", f"model={name}", "~robot_sdf_eval",
-                         f"paths.runs_dir={folder.path.parent.parent}", *overrides])
+            # Inside the comparison's own folder: a run under runs/robot_sdf_<robot>/ would be what a later
+            # `system.robot_sdf=robot_sdf_<robot>` picks up (the newest completed run of that name).
+            run = train([f"+experiment=robot_sdf_{robot}", f"model={name}", "~robot_sdf_eval", *overrides],
+                        run_dir=folder.path / name)
             record = run.read()
             sdf = load_robot_sdf(run.path, model)
             methods[sdf.method] = {"model": sdf, "train_time_s": record["metrics"].get("train_time_s")}
@@ -61,7 +65,8 @@ def compare_methods(robot: str = "panda", overrides: list[str] | tuple = (), rdf
         if len(dataset_ids) != 1:
             raise RuntimeError(f"the network runs used different sample sets {sorted(dataset_ids)}")
         dataset_id = dataset_ids.pop()
-        samples = load_samples(resolve_ref(f"{dataset_name(robot)}@{dataset_id}"))
+        datasets = Path(run.read()["config"]["paths"]["datasets_dir"])  # where the runs found their samples
+        samples = load_samples(resolve_ref(f"{dataset_name(robot)}@{dataset_id}", datasets))
         for n_basis, kwargs in (rdf or RDF_DEFAULTS).items():
             t0 = time.perf_counter()
             net, info = fit_bernstein(samples, int(n_basis), **kwargs)

@@ -9,12 +9,13 @@
 conf/train.yaml's defaults list.) `samp.train` composes with Hydra's compose API; `-m` (or `sweep=NAME`)
 hands the arguments to `multirun` here, which runs Hydra's own `main` on conf/train.yaml so that sweepers
 and launchers (basic, joblib, submitit/SLURM) work as Hydra documents them. A sweep config (conf/sweep/NAME.yaml) sets
-`hydra.sweeper.params` and `hydra.sweep.dir` (runs/sweeps/NAME). Every member is exactly
-`samp.train.train(its overrides + run_dir=<member folder>)`, so it is checked, recorded and evaluated like
-a single run. Its folder is `<sweep dir>/<override_dirname>`, built from the overrides that vary between
-members and the experiment, e.g. `runs/sweeps/anchor_size/experiment=samp_n40/`; the other overrides
-are recorded in the member's run.json. A member folder named before `experiment` joined the defaults list
-(`+experiment=samp_n40`) is still found and used in place.
+`hydra.sweeper.params` and `hydra.sweep.dir` (runs/sweeps/NAME). Every member is exactly `samp.train.train(its
+overrides, run_dir=<member folder>)` (the folder passed as data, never as an override string), so it is
+checked, recorded and evaluated like a single run. Its folder is `<sweep dir>/<override_dirname>`, built from
+the overrides that vary between members and the experiment, e.g.
+`runs/sweeps/anchor_size/experiment=samp_n40/`; the other overrides are recorded in the member's run.json. A
+member folder named before `experiment` joined the defaults list (`+experiment=samp_n40`) is still found and
+used in place.
 
 Running a sweep again: a member whose run.json says completed with the same overrides is skipped; one
 completed with other overrides is an error (use another `hydra.sweep.dir`); an interrupted or failed
@@ -90,17 +91,84 @@ def _hydra_settings(overrides: list[str]) -> list[str]:
     return [f"{k}={v}" for k, v in settings.items() if k not in keys]
 
 
+def _first_member(argv: list[str]) -> list[str]:
+    """The overrides of the sweep's first member: every swept value (command line or sweep config) at its
+    first choice, the sweep's name dropped."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf import OmegaConf
+
+    from samp.paths import conf_dir
+
+    parser = OverridesParser.create()
+    member, swept = [], {}
+    for o in parser.parse_overrides(argv):
+        if o.key_or_group == "sweep" or o.key_or_group.startswith("hydra"):
+            continue
+        if o.is_sweep_override():
+            swept[o.key_or_group] = next(iter(o.sweep_string_iterator()))
+        else:
+            member.append(o.input_line)
+    _, sweep = _swept_keys(argv)
+    if sweep is not None:
+        params = OmegaConf.select(OmegaConf.load(conf_dir() / "sweep" / f"{sweep}.yaml"), "hydra.sweeper.params") or {}
+        for key, values in params.items():
+            o = parser.parse_override(f"{key}={values}")
+            swept.setdefault(override_key(str(key)), next(iter(o.sweep_string_iterator())) if o.is_sweep_override()
+                             else str(values))
+    return member + [f"{k}={v}" for k, v in swept.items()]
+
+
+def _keys_of_swept_experiments(argv: list[str]) -> list[str]:
+    """`argv` with every plain `a.b=value` whose node exists only once an experiment is chosen written
+    `++a.b=value`, after checking the sweep's first member composes with the plain spelling.
+
+    Hydra composes a sweep's primary config before it applies the swept values, so with the experiment
+    swept (`-m sweep=anchor_size`, `experiment=A,B`) a key the experiment brings (`datamodule.dataset`)
+    does not exist yet there, and Hydra would refuse it ("Key 'dataset' is not in struct"). Each member
+    composes with its experiment, where `++a.b=value` means the same as `a.b=value`; the check on the
+    first member keeps a typo an error, as in a single run."""
+    from omegaconf import OmegaConf
+
+    from samp.cli import compose
+    from samp.train.config import compose_train_config
+
+    plain = [o for o in argv if "=" in o and not o.startswith(("+", "~")) and "." in o.partition("=")[0]
+             and not o.startswith("hydra")]
+    if not plain:
+        return argv
+    base = compose("train", [o for o in argv if o not in plain and not o.startswith("hydra")
+                             and not _is_sweep(o) and override_key(o) != "sweep"])
+    late = [o for o in plain if OmegaConf.select(base, o.partition("=")[0], default=_ABSENT,
+                                                 throw_on_missing=False) is _ABSENT]
+    if not late:
+        return argv
+    compose_train_config(_first_member(argv))  # unknown keys are named here, as for a single run
+    return [f"++{o}" if o in late else o for o in argv]
+
+
+_ABSENT = object()
+
+
+def _is_sweep(override: str) -> bool:
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    return OverridesParser.create().parse_override(override).is_sweep_override()
+
+
 def multirun(argv: list[str]) -> int:
     """Run a sweep (arguments as `python -m samp.train -m ...` takes them, without the `-m`).
     Relative paths are taken from the repository root, as everywhere in samp."""
     import hydra
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
 
     from samp.paths import REPO_ROOT, conf_dir
 
     argv = canonical_overrides("train", argv)  # +experiment=, +sweep= as experiment=, sweep=
     try:
         settings = _hydra_settings(argv)
-    except ValueError as err:
+        argv = _keys_of_swept_experiments(argv)
+    except (ValueError, HydraException, OmegaConfBaseException) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     os.chdir(REPO_ROOT)
@@ -120,7 +188,7 @@ def member_state(folder: Path, overrides: list[str]) -> str:
     record = run.read()
     recorded = [o for o in record.get("overrides", []) if override_key(o) not in ("resume", "run_dir")]
     # `+experiment=X` (as recorded before the defaults list named the group) and `experiment=X` are one override
-    recorded, overrides = canonical_overrides("train", recorded), canonical_overrides("train", overrides)
+    recorded, overrides = _same_spelling(recorded), _same_spelling(overrides)
     if record.get("status") == "completed":
         if sorted(recorded) == sorted(overrides):
             return "skip"
@@ -140,6 +208,12 @@ def member_state(folder: Path, overrides: list[str]) -> str:
     print(f"{folder}: the earlier attempt stopped before its first checkpoint; kept as run.attempt-{k}.json, "
           "starting again", flush=True)
     return "new"
+
+
+def _same_spelling(overrides: list[str]) -> list[str]:
+    """`+experiment=X` (as recorded before the defaults list named the group) is `experiment=X`, and
+    `++a.b=v` (how a sweep over experiments hands keys to Hydra) is `a.b=v`."""
+    return [o[2:] if o.startswith("++") else o for o in canonical_overrides("train", overrides)]
 
 
 def _alive(pid) -> bool:
@@ -212,10 +286,10 @@ def _member(cfg) -> dict | None:
     if state == "skip":
         print(f"{folder.name}: completed earlier, skipped", flush=True)
         return RunFolder(folder).read().get("metrics")
-    quoted = "'" + str(folder).replace("\\", "\\\\").replace("'", "\\'") + "'"  # member names hold = and ,
-    where = f"resume={quoted}" if state == "resume" else f"run_dir={quoted}"
+    # The folder goes to the recipe as data: member names hold `=` and `,`, which an override string would parse.
+    where = {"resume": folder} if state == "resume" else {"run_dir": folder}
     sweep = {"dir": str(Path(hc.sweep.dir).resolve()), "member": hc.job.override_dirname if folder == named
              else folder.name}
     with _outside_hydra():
-        run = train([*overrides, where], sweep=sweep)
+        run = train(overrides, sweep=sweep, **where)
     return run.read().get("metrics")

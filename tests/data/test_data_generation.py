@@ -179,6 +179,28 @@ def test_same_spec_and_seed_give_the_same_id(tiny, tmp_path):
         assert (again / f.name).read_bytes() == f.read_bytes()
 
 
+def test_a_finished_dataset_generated_again_is_found_not_replanned(tiny, capsys):
+    """Generating the same spec again returns the finished dataset, says so in one line, plans nothing
+    (no work folder appears, no file changes) and merging again says the same instead of "not generated"."""
+    from samp.data.generation import merge, work_dir
+    from samp.data.spec import load_spec
+
+    folder, root = tiny
+    before = {f.name: f.stat().st_mtime_ns for f in folder.iterdir()}
+    capsys.readouterr()
+    assert generate(TINY, root=root, workers=2, progress=False) == folder
+    lines = [x for x in capsys.readouterr().out.splitlines() if x.strip()]
+    assert lines == [f"tiny: already generated from this spec as tiny@{folder.name} ({folder}); nothing to plan or "
+                     "merge"], lines
+    assert not work_dir(load_spec(TINY), root).exists(), "generating again started planning"
+    assert merge(TINY, root=root) == folder
+    assert f"already merged into tiny@{folder.name}" in capsys.readouterr().out
+    assert {f.name: f.stat().st_mtime_ns for f in folder.iterdir()} == before
+    other = dict(TINY, seed=8)  # another spec of the same name is not "found"
+    with pytest.raises(GenerationError, match="not generated yet"):
+        merge(other, root=root)
+
+
 def test_a_legacy_dataset_with_heldout_scenes_still_opens(tiny, tmp_path):
     """A dataset written before issue 17 (its second scene labelled "heldout", no evaluation problems)
     opens with "heldout" read as "val" and `legacy_splits` set; relabelled alone, it is legacy too."""

@@ -17,18 +17,41 @@ import pytest
 pytestmark = pytest.mark.slow
 
 
+def _tree(root: Path) -> dict[str, int]:
+    """Every file under `root` with its mtime, Python caches and the git folder left out."""
+    out = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = [d for d in dirnames if d not in ("__pycache__", ".pytest_cache", ".git", ".venv")]
+        out.update({os.path.join(dirpath, f): os.stat(os.path.join(dirpath, f)).st_mtime_ns for f in filenames})
+    return out
+
+
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory, _isolated_cache):
+    """The pipeline run from a folder of its own with the run and dataset folders given as config
+    (`paths.runs_dir`, `paths.datasets_dir`; the environment variables unset): every reader and writer of
+    the recipe, the robot SDF it builds and its evaluations included, must go there, and nothing into the
+    repository or the working folder."""
     tmp = tmp_path_factory.mktemp("demo")
-    env = {**os.environ, "SAMP_RUNS_DIR": str(tmp / "runs"), "SAMP_DATASETS_DIR": str(tmp / "datasets")}
+    env = {k: v for k, v in os.environ.items() if k not in ("SAMP_RUNS_DIR", "SAMP_DATASETS_DIR")}
+    repo = Path(__file__).resolve().parents[2]
+    env["PYTHONPATH"] = str(repo)
+    (tmp / "work").mkdir()
+    before = _tree(repo)
     cmd = [sys.executable, "-m", "samp.train", "+experiment=quickstart", "datamodule.dataset=smoke",
+           f"paths.runs_dir={tmp / 'runs'}", f"paths.datasets_dir={tmp / 'datasets'}",
            "datamodule.n_e=16", "datamodule.val_samples=50", "trainer.max_epochs=1",
            "+trainer.limit_train_batches=4", "trainer.enable_progress_bar=false", "evaluation.problems=2",
            "evaluation.benchmark=smoke",
            "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env, cwd=tmp / "work")
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     (run,) = (tmp / "runs" / "quickstart").iterdir()
+    after = _tree(repo)
+    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    assert not changed, f"the pipeline wrote into the repository: {changed[:20]}"
+    assert not any((tmp / "work").iterdir()), f"the pipeline wrote into its working folder: {list((tmp / 'work').iterdir())}"
+    assert sorted(p.name for p in tmp.iterdir()) == ["datasets", "runs", "work"]
     return tmp, run, out.stdout
 
 

@@ -7,6 +7,7 @@ import pytorch_lightning as pl
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
+from samp.data import open_dataset
 from samp.eval import EvalCallback, StraightLinePolicy, evaluate
 
 
@@ -93,3 +94,14 @@ def test_a_module_without_a_planner_or_a_dataset_is_refused(tiny_problems, tmp_p
     callback = EvalCallback(problems=tiny_problems[1][:1], split="val")
     with pytest.raises(TypeError, match=r"NoPolicy.planner\(\)"):
         _trainer(tmp_path, callback, epochs=1).fit(NoPolicy(None))
+
+
+def test_the_callback_finds_its_dataset_in_the_folder_it_is_given(tiny_eval, monkeypatch, tmp_path):
+    """A dataset outside the default datasets folder is found through `root` (as conf/callbacks/eval.yaml
+    passes the run's folder), and only there."""
+    folder, root = tiny_eval
+    monkeypatch.setenv("SAMP_DATASETS_DIR", str(tmp_path))  # the default folder holds no such dataset
+    with pytest.raises(Exception, match="tiny_eval"):
+        EvalCallback(problems=1, dataset="tiny_eval", split="val").problems()
+    problems = EvalCallback(problems=1, dataset="tiny_eval", split="val", root=str(root)).problems()
+    assert len(problems) == 1 and problems[0].scene.name in {s.name for s in open_dataset(folder).scenes}

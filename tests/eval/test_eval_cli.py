@@ -82,8 +82,36 @@ def test_cli_evaluates_a_run_and_the_expert_beside_it(tiny_eval, tmp_path, capsy
     records = [json.loads(line) for line in (run / "eval" / PROBLEMS_JSONL).read_text().splitlines()]
     assert sorted(r["planner"] for r in records) == ["expert", "expert", "straight", "straight"]
     assert not (run / "eval" / RECORDING_RRD).exists()
-    assert main([f"run={run}", "splits=[val]", "problems=2", "record=false", "benchmark=null"]) == 2
-    assert "overwrite=true" in _error(capsys), "an earlier evaluation is not replaced silently"
+
+
+def test_evaluating_a_run_again_writes_beside_the_earlier_evaluation(tiny_eval, tmp_path, capsys, fake_policy_package,
+                                                                     panda):
+    """As after training (which writes eval/): the next evaluation goes to eval-2/, then eval-3/, leaving the
+    earlier files as they were; overwrite=true replaces eval/; a given out= holding one is refused."""
+    run = _run_folder(tmp_path, tiny_eval[0], asset_hash=panda.asset_hash)
+    args = [f"run={run}", "splits=[val]", "problems=2", "record=false", "benchmark=null"]
+    assert main(args) == 0, _error(capsys)
+    first = (run / "eval" / METRICS_JSON).read_bytes()
+    assert main([*args, "problems=1"]) == 0, _error(capsys)
+    assert f"this one goes to {run / 'eval-2'}" in capsys.readouterr().out
+    assert (run / "eval" / METRICS_JSON).read_bytes() == first, "the earlier evaluation was changed"
+    assert json.loads((run / "eval-2" / METRICS_JSON).read_text())["groups"]["val"]["problems"] == 1
+    assert main(args) == 0 and (run / "eval-3" / METRICS_JSON).is_file()
+    assert main([*args, "problems=1", "overwrite=true"]) == 0, _error(capsys)
+    assert json.loads((run / "eval" / METRICS_JSON).read_text())["groups"]["val"]["problems"] == 1
+    assert not (run / "eval-4").exists()
+    assert main([*args, f"out={run / 'eval'}"]) == 2
+    assert "overwrite=true" in _error(capsys), "a folder the user names is not replaced silently"
+
+
+def test_without_a_run_the_evaluation_goes_under_the_configured_runs_folder(tiny_eval, tmp_path, capsys, monkeypatch):
+    from samp.data import open_dataset
+
+    folder, _ = tiny_eval
+    ds = open_dataset(folder)
+    monkeypatch.setenv("SAMP_RUNS_DIR", str(tmp_path / "runs"))
+    assert main(["planner=straight", f"dataset={folder}", "splits=[val]", "record=false", "benchmark=null"]) == 0
+    assert (tmp_path / "runs" / "eval" / f"straight_{ds.name}@{ds.id}" / METRICS_JSON).is_file(), _error(capsys)
 
 
 def test_the_test_scenes_of_the_run_s_own_dataset_can_be_evaluated(tiny_eval, tmp_path, capsys, fake_policy_package,

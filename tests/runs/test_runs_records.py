@@ -126,3 +126,52 @@ def test_ddp_trainer_and_sweep_configs_compose():
         assert params["experiment"].split(",") == members
         for experiment in members:  # every member composes
             compose_train_config([f"+experiment={experiment}"])
+
+
+def test_a_run_too_short_to_log_still_gets_its_metrics_csv(tmp_path):
+    """A run that ends before `log_every_n_steps` and is not evaluated logged nothing: the last values of the
+    run become metrics.csv's one row. A run that logged rows gets no extra one."""
+    import csv
+
+    from samp.runs.loggers import RunCSVLogger, finish_loggers
+
+    short = RunCSVLogger(str(tmp_path / "short"))
+    finish_loggers([short], {"epochs": 0}, {}, step=3, final={"train/loss": 0.5, "note": "text"})
+    rows = list(csv.DictReader((tmp_path / "short" / "metrics.csv").open()))
+    assert rows == [{"epoch": "0.0", "step": "3", "train/loss": "0.5"}], rows
+    logged = RunCSVLogger(str(tmp_path / "logged"))
+    logged.log_metrics({"train/loss": 0.7}, step=1)
+    finish_loggers([logged], {"epochs": 0}, {}, step=3, final={"train/loss": 0.5})
+    rows = list(csv.DictReader((tmp_path / "logged" / "metrics.csv").open()))
+    assert [r["train/loss"] for r in rows] == ["0.7"], rows
+
+
+def test_the_resume_hint_appears_only_when_the_run_can_be_resumed(tmp_path):
+    """Interrupted before its first checkpoint, `resume=` would refuse the run: the message says to start
+    again. With checkpoints/last.ckpt it gives the resume command, the folder quoted for the shell."""
+    from samp.runs import RunFolder
+    from samp.runs.folder import Terminated
+    from samp.train.cli import interrupted_hint
+
+    run = RunFolder.create_at(tmp_path / "sweep" / "experiment=samp_n40,seed=0")
+    early = interrupted_hint(Terminated("SIGTERM"), run)
+    assert "cannot be resumed" in early and "start it again" in early and "resume=" not in early, early
+    run.last_checkpoint.parent.mkdir(parents=True, exist_ok=True)
+    run.last_checkpoint.write_bytes(b"checkpoint")
+    late = interrupted_hint(KeyboardInterrupt(), run)
+    assert late.endswith(f"""continue with `python -m samp.train 'resume="{run.path}"'`"""), late
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    given = late.split("`")[1].split(" ", 3)[3][1:-1]  # what the shell hands over: resume="..."
+    assert OverridesParser.create().parse_override(given).value() == str(run.path), "Hydra reads another folder"
+
+
+def test_tables_by_dotted_keys_get_files_of_their_own(tmp_path):
+    from samp.runs.tables import write_table
+
+    a = write_table(tmp_path / "table_by_datamodule.n_e", ["datamodule.n_e"], [["40"]])
+    b = write_table(tmp_path / "table_by_datamodule.dataset", ["datamodule.dataset"], [["smoke"]])
+    assert [p.name for p in a + b] == ["table_by_datamodule.n_e.md", "table_by_datamodule.n_e.csv",
+                                       "table_by_datamodule.dataset.md", "table_by_datamodule.dataset.csv"]
+    assert "40" in a[0].read_text() and "smoke" in b[0].read_text()
+    assert [p.name for p in write_table(tmp_path / "mine.md", ["k"], [["v"]])] == ["mine.md", "mine.csv"]

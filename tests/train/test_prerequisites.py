@@ -75,3 +75,51 @@ def test_a_robot_sdf_name_resolves_to_its_newest_completed_run(tmp_path):
     assert resolve_robot_sdf("robot_sdf_panda", tmp_path) == older.path
     with pytest.raises(FileNotFoundError, match="experiment=robot_sdf_iiwa"):
         resolve_robot_sdf("robot_sdf_iiwa", tmp_path)
+
+
+def _sdf_run(root, name: str, stamp: str, target: str, content: bytes):
+    from samp.robot_sdf.artifact import artifact_id
+    from samp.runs import RunFolder
+
+    run = RunFolder.create_at(root / name / stamp)
+    (run.path / "robot_sdf.pt").write_bytes(content)
+    run.update(status="completed", config={"model": {"_target_": target}},
+               robot_sdf_artifact_id=artifact_id(run.path / "robot_sdf.pt"))
+    return run.path
+
+
+HASH, NN = "samp.robot_sdf.model.UnifiedHashSDF", "samp.robot_sdf.baselines.NNSDF"
+
+
+def test_a_robot_sdf_name_resolves_only_among_runs_of_the_network_its_experiment_trains(tmp_path):
+    """An NN-SDF run made later under the same experiment name (the README's baseline command) is not what
+    `robot_sdf_panda` means; `NAME@ID` picks any run by its artifact's content id."""
+    from samp.robot_sdf.artifact import artifact_id
+    from samp.train.prerequisites import resolve_robot_sdf
+
+    hash_run = _sdf_run(tmp_path, "robot_sdf_panda", "2026-01-01_00-00-00", HASH, b"hash grid")
+    nn_run = _sdf_run(tmp_path, "robot_sdf_panda", "2026-02-01_00-00-00", NN, b"nn-sdf")
+    assert resolve_robot_sdf("robot_sdf_panda", tmp_path) == hash_run
+    nn_id = artifact_id(nn_run / "robot_sdf.pt")
+    assert resolve_robot_sdf(f"robot_sdf_panda@{nn_id[:6]}", tmp_path) == nn_run
+    with pytest.raises(FileNotFoundError, match=f"id starts with 'zz'.*{nn_id}"):
+        resolve_robot_sdf("robot_sdf_panda@zz", tmp_path)
+    (hash_run / "run.json").unlink()  # only the NN-SDF run is left: the name finds nothing, and says what is there
+    with pytest.raises(FileNotFoundError, match=f"UnifiedHashSDF.*not taken by name.*{nn_id}"):
+        resolve_robot_sdf("robot_sdf_panda", tmp_path)
+
+
+def test_an_ambiguous_robot_sdf_name_lists_the_candidates(tmp_path):
+    from samp.runs import RunFolder
+    from samp.train.prerequisites import resolve_robot_sdf
+
+    a = _sdf_run(tmp_path, "my_sdfs", "2026-01-01_00-00-00", HASH, b"a")
+    b = _sdf_run(tmp_path, "my_sdfs", "2026-02-01_00-00-00", NN, b"b")
+    with pytest.raises(ValueError, match="ambiguous") as err:
+        resolve_robot_sdf("my_sdfs", tmp_path)  # no conf/experiment/my_sdfs.yaml says which network is meant
+    assert str(a) in str(err.value) and str(b) in str(err.value), str(err.value)
+    RunFolder(a).update(robot_sdf_artifact_id="abc111111111")
+    RunFolder(b).update(robot_sdf_artifact_id="abc222222222")
+    with pytest.raises(ValueError, match="ambiguous: 2 artifacts' ids start with 'abc'"):
+        resolve_robot_sdf("my_sdfs@abc", tmp_path)
+    assert resolve_robot_sdf("my_sdfs@abc2", tmp_path) == b

@@ -16,6 +16,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--override", nargs="*", default=[], help="robot_sdf: overrides for both network runs, "
                     "e.g. robot_sdf_samples=tiny trainer.max_steps=200")
     ap.add_argument("--points", type=int, default=1024, help="robot_sdf: robot points per configuration (label only)")
+    ap.add_argument("--sdf-eval", default="default", help="robot_sdf: the accuracy evaluation's sizes, "
+                    "conf/robot_sdf_eval/NAME.yaml (tiny: a quick check, not Table III)")
 
 
 def _rows(methods: dict, ours: str, points: int) -> list[list]:
@@ -42,7 +44,12 @@ def run(args) -> tuple[dict, list[list]]:
     from samp.train.robot_sdf_compare import compare_methods
 
     overrides = [f"trainer.accelerator={'gpu' if args.device.startswith('cuda') else 'cpu'}", *args.override]
-    report, folder = compare_methods(args.robot, overrides)
+    from omegaconf import OmegaConf
+
+    from samp.cli import compose
+
+    evaluation = OmegaConf.to_container(compose("train", [f"+robot_sdf_eval={args.sdf_eval}"]).robot_sdf_eval)
+    report, folder = compare_methods(args.robot, overrides, evaluation=evaluation)
     methods = report["methods"]
     ours = next(label for label in methods if "hash" in label.lower() or label.startswith("SAMP"))
     metrics = {"folder": str(folder), "dataset_id": report["dataset_id"]}

@@ -238,11 +238,31 @@ def test_the_expert_planning_afresh_solves_its_own_problems(tiny_problems):
     some with a start exactly at a joint limit, is solved again without collision."""
     from samp.robot import load_robot
 
+    from dataclasses import replace
+
+    from samp.sim import World
+
     _, problems = tiny_problems
-    limits = load_robot("panda", dtype=torch.float64).joint_limits.numpy()
-    assert any(np.isin(q, limits).any() for p in problems[3:] for q in (p.q_start, p.q_goal)), \
-        "the test needs a start or goal exactly at a joint limit (the IK goals of this dataset have some)"
-    result = evaluate(load_planner("expert", robot=load_robot("panda"), mode="plan"), problems[3:])
+    exact = load_robot("panda", dtype=torch.float64)
+    limits = exact.joint_limits.numpy()
+    # Starts exactly at a float64 joint limit (what float32 IK goals rounded inward are meant to plan from):
+    # each stored problem's start with one joint moved onto a limit, where that is collision-free.
+    at_limit = []
+    for p in problems[3:]:
+        with World(exact, p.scene) as world:
+            for j in range(7):
+                for bound in limits[j]:
+                    q = p.q_start.copy()
+                    q[j] = bound
+                    if not world.in_collision(q[None])[0]:
+                        at_limit.append(replace(p, q_start=q, name=f"{p.name}/joint{j}@{bound}"))
+                        break
+                else:
+                    continue
+                break
+    assert len(at_limit) >= 2, "the test needs starts exactly at a joint limit"
+    assert all(np.isin(p.q_start, limits).any() for p in at_limit)
+    result = evaluate(load_planner("expert", robot=load_robot("panda"), mode="plan"), problems[3:] + at_limit)
     m = result["metrics"]["all"]
     assert m["success_rate"] == 1.0 and m["collision_rate"] == 0.0, [r["termination"] for r in result["records"]]
     assert all(r["solution_time"] > 0 for r in result["records"])

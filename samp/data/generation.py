@@ -207,7 +207,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     """Generate the scenes of `shard` (None: all of them) with `workers` processes, resuming from any
     finished scene files. When every scene of the spec is done, merge into a dataset and return its
     folder; otherwise (a shard of several) return None."""
-    from tqdm.auto import tqdm
+    from samp.console import Progress
 
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
     if num_shards < 1 or (shard is not None and not 0 <= shard < num_shards):
@@ -225,7 +225,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     if len(todo) < len(jobs):
         print(f"{label}: resuming, {len(jobs) - len(todo)} of {len(jobs)} scenes already done in {work}")
     plans = sum(j.trajectories + j.eval_problems for j in todo)  # demonstrations and evaluation problems
-    bar = tqdm(total=plans, desc=label, unit="plan", disable=not progress, smoothing=0.05)
+    bar = Progress(plans, label, unit="plan", enabled=progress)  # a bar on a terminal, else a line now and then
     spec_dict = spec.resolved()
     spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__}
     try:

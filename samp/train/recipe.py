@@ -84,13 +84,23 @@ def _open_folder(cfg):
 
 
 def train(overrides: list[str], **info):
-    """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there)."""
+    """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there).
+    What it prints is also kept in the run folder's `train.log`."""
+    from samp.names import TRAIN_LOG
+    from samp.runs.console import RunLog
+
+    with RunLog(TRAIN_LOG) as log:
+        return _train(overrides, log, **info)
+
+
+def _train(overrides: list[str], log, **info):
     import time
 
     import pytorch_lightning as pl
     from hydra.utils import instantiate
     from omegaconf import OmegaConf, open_dict
 
+    from samp.runs.console import quiet_lightning, trainer_console
     from samp.runs.distributed import is_rank_zero
     from samp.runs.loggers import finish_loggers
     from samp.train.after_fit import after_fit
@@ -107,6 +117,7 @@ def train(overrides: list[str], **info):
         cfg.run_dir = str(folder.path)
     rank_zero = is_rank_zero()
     if rank_zero:
+        log.attach(folder.path)
         folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
         if ckpt is not None:
             _trim_metrics(folder, ckpt, _trust(cfg))
@@ -122,7 +133,10 @@ def train(overrides: list[str], **info):
         system = instantiate(cfg.system)
         callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
         loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
-        trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
+        console, progress = trainer_console(cfg.trainer)  # a progress bar on a terminal, else lines
+        quiet_lightning()  # before the Trainer, which logs its tip when it is made
+        trainer = instantiate(cfg.trainer, callbacks=callbacks + progress, logger=loggers or False,
+                              default_root_dir=folder.path, **console)
         start = time.perf_counter()
         with _safe_resume(ckpt, cfg):
             trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None,

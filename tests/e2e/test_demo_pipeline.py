@@ -23,13 +23,17 @@ def demo(tmp_path_factory, _isolated_cache):
     env = {**os.environ, "SAMP_RUNS_DIR": str(tmp / "runs"), "SAMP_DATASETS_DIR": str(tmp / "datasets")}
     cmd = [sys.executable, "-m", "samp.train", "+experiment=quickstart", "datamodule.dataset=smoke",
            "datamodule.n_e=16", "datamodule.val_samples=50", "trainer.max_epochs=1",
-           "+trainer.limit_train_batches=4", "trainer.enable_progress_bar=false", "evaluation.problems=2",
+           "+trainer.limit_train_batches=4", "evaluation.problems=2",
            "evaluation.benchmark=smoke",
            "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     (run,) = (tmp / "runs" / "quickstart").iterdir()
+    LOGS["stderr"] = out.stderr  # for the log test; the others read stdout
     return tmp, run, out.stdout
+
+
+LOGS: dict[str, str] = {}
 
 
 def test_the_dataset_was_built_and_verifies(demo):
@@ -135,3 +139,18 @@ def test_an_unknown_experiment_lists_the_available_ones():
                          timeout=300)
     assert out.returncode == 2, (out.returncode, out.stderr[-2000:])
     assert "Could not find 'experiment/quikstart'" in out.stderr and "quickstart" in out.stderr, out.stderr[-2000:]
+
+
+def test_the_log_is_quiet_and_kept_in_the_run_folder(demo):
+    """Captured as a cluster log would be (not a terminal): no progress redraws, no nanobind leak reports
+    from the dataset workers, no pybullet banner, no Lightning tip, the table once; train.log has it all."""
+    _, run, stdout = demo
+    log = stdout + LOGS["stderr"]
+    for noise in ("\r", "\x1b[", "nanobind: leaked", "pybullet build time", "Tip:"):
+        assert noise not in log, f"{noise!r} in the captured output:\n{log[-3000:]}"
+    assert log.count("| samp | val |") == 1, "the results table is printed more than once"
+    assert "epoch 0 done: step 4" in LOGS["stderr"], "no line of training progress in place of the bar"
+    kept = (run / "train.log").read_text()
+    assert f"run folder: {run}" in kept and "| samp | val |" in kept and "epoch 0 done" in kept
+    assert "GPU available:" in kept, "Lightning's own log lines are not in train.log"
+    assert "\r" not in kept

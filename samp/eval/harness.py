@@ -175,10 +175,10 @@ def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | No
         for split, rows in splits.items():  # one split at a time: its batch timings are its own
             subset = [problems[i] for i in rows]
             with Progress(len(subset), f"  {name} {split}: {'rollouts' if is_policy else 'plans'}", "problem",
-                          every_s=progress_s, enabled=progress_s is not None) as bar:
+                          every_s=progress_s or 0.0, enabled=progress_s is not None) as bar:
                 results = _rollout_batches(planner, subset, cfg, grids, checker_robot, bar) if is_policy else \
                     _plan_all(planner, subset, checker_robot, bar)
-            with Progress(len(subset), f"  {name} {split}: checks", "problem", every_s=progress_s,
+            with Progress(len(subset), f"  {name} {split}: checks", "problem", every_s=progress_s or 0.0,
                           enabled=progress_s is not None) as bar:
                 checked = _records(planner, subset, results, checker, cfg, bar)
             for i, rec in zip(rows, checked):

@@ -184,10 +184,19 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         write_scene_file(out / job.file, SceneRecord(
             scene, job.index, job.split, list(robot.joint_names), _file_metadata(spec, job, robot.asset_hash),
             grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
-            eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes))
+            eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
+            poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
         return sidecar
     finally:
         torch.set_num_threads(threads)
+
+
+def link_poses(robot, q: np.ndarray) -> dict[str, np.ndarray]:
+    """q (T, n) radians -> link name -> (T, 4, 4) poses in the base frame (float64 forward kinematics)."""
+    with torch.no_grad():
+        fk = robot.fk(torch.as_tensor(np.asarray(q), dtype=robot.dtype))
+    names = [*robot.link_meshes, *([] if robot.ee_link in robot.link_meshes else [robot.ee_link])]
+    return {name: fk[name].double().cpu().numpy() for name in names}
 
 
 def _stacked(trajectories: list[np.ndarray], n: int) -> np.ndarray:

@@ -29,7 +29,10 @@ __all__ = ["FORMAT_VERSION", "MANIFEST", "READABLE_VERSIONS", "SCENE_FILE_VERSIO
 
 FORMAT_VERSION = 2  # of the manifest; 2 added manifest_sha256
 READABLE_VERSIONS = (1, 2)
-SCENE_FILE_VERSION = 1  # the `format_version` inside each scene file's metadata (unchanged, so ids are too)
+# The `format_version` inside each scene file's metadata. 2: waypoints timed as the robot would move, /tf,
+# /robot and /ee_path for viewers, embedded mesh obstacles, voxel grids centred on the anchors (new ids);
+# files of format 1 are read as before (samp/data/mcap_io.py).
+SCENE_FILE_VERSION = 2
 MANIFEST = "manifest.json"
 MANIFEST_HASH = "manifest_sha256"
 ID_LENGTH = 12

@@ -154,3 +154,19 @@ def test_the_log_is_quiet_and_kept_in_the_run_folder(demo):
     assert f"run folder: {run}" in kept and "| samp | val |" in kept and "epoch 0 done" in kept
     assert "GPU available:" in kept, "Lightning's own log lines are not in train.log"
     assert "\r" not in kept
+
+
+def test_the_run_plots_are_there(demo):
+    """After training: the learning curves (with the learning rate logged in metrics.csv), the outcomes and
+    the SDF slice of an evaluated scene; `python -m samp.runs plot RUN kind=run` draws them again."""
+    _, run, stdout = demo
+    header = (run / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert any(h.startswith("lr-") for h in header), header
+    for name in ("learning.png", "outcomes.png", "sdf_slice.png"):
+        path = run / "plots" / name
+        assert path.is_file() and path.read_bytes()[:4] == b"\x89PNG", name
+        assert f"plot: {path}" in stdout
+    out = subprocess.run([sys.executable, "-m", "samp.runs", "plot", str(run), "kind=run", f"out={run / 'again'}"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in (run / "again").iterdir()) == ["learning.png", "outcomes.png", "sdf_slice.png"]

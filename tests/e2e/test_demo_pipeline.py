@@ -23,7 +23,7 @@ def demo(tmp_path_factory, _isolated_cache):
     env = {**os.environ, "SAMP_RUNS_DIR": str(tmp / "runs"), "SAMP_DATASETS_DIR": str(tmp / "datasets")}
     cmd = [sys.executable, "-m", "samp.train", "+experiment=quickstart", "datamodule.dataset=smoke",
            "datamodule.n_e=16", "datamodule.val_samples=50", "trainer.max_epochs=1",
-           "+trainer.limit_train_batches=4", "evaluation.problems=2",
+           "+trainer.limit_train_batches=4", "trainer.log_every_n_steps=2", "evaluation.problems=2",
            "evaluation.benchmark=smoke",
            "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)

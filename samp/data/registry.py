@@ -70,7 +70,9 @@ def recreate_hint(folder: Path, manifest: dict | None = None, how: str | None = 
 
 
 def _data_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.rglob("*") if p.is_file() and p.name != MANIFEST)
+    from samp.data.card import CARD
+
+    return sorted(p for p in folder.rglob("*") if p.is_file() and p.name not in (MANIFEST, CARD))
 
 
 def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = None) -> Path:
@@ -90,6 +92,9 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), **manifest, "files": files}
     full[MANIFEST_HASH] = manifest_hash(full)
     (tmp / MANIFEST).write_text(json.dumps(full, indent=2, sort_keys=True))
+    from samp.data.card import CARD, dataset_card
+
+    (tmp / CARD).write_text(dataset_card(full))  # for people; like the manifest, not a hashed data file
     dest = root / name / ident
     dest.parent.mkdir(parents=True, exist_ok=True)
     try:

@@ -97,7 +97,11 @@ def after_fit(cfg, system, datamodule, run_dir: Path) -> dict:
     from samp.robot_sdf.system import RobotSDFSystem
 
     if isinstance(system, PolicySystemBase):
-        return evaluate_policy(system, datamodule, run_dir, cfg.evaluation)
+        metrics = evaluate_policy(system, datamodule, run_dir, cfg.evaluation)
+        from samp.runs.cards import write_model_card
+
+        print(f"model card: {write_model_card(run_dir)}", flush=True)
+        return metrics
     if isinstance(system, RobotSDFSystem):
         evaluation = cfg.get("robot_sdf_eval")
         return export_robot_sdf(system, run_dir, None if evaluation is None else OmegaConf.to_container(evaluation))

@@ -375,3 +375,16 @@ def test_format_1_scene_files_keep_their_layout_and_read_the_same(tiny, tmp_path
     assert times[:3] == [0, 1, 2]  # waypoint t of episode 0 at t ns, as format 1 wrote them
     np.testing.assert_array_equal(old.trajectories.numpy(), open_dataset(tiny[0]).trajectories.numpy())
     assert len(old.eval_problems) == len(open_dataset(tiny[0]).eval_problems)
+
+
+def test_every_dataset_has_a_card_outside_its_id(tiny, tmp_path):
+    """CARD.md says what the dataset is (counts, splits, how to open and verify it), beside the manifest; it is
+    not a hashed data file, so a dataset with its card still verifies and its id is the data's alone."""
+    folder = tiny[0]
+    card = (folder / "CARD.md").read_text()
+    manifest = read_manifest(folder)
+    assert f"# Dataset card: tiny@{manifest['id']}" in card
+    for scene in manifest["splits"]["val"]:
+        assert scene in card
+    assert f"{manifest['counts']['trajectories']} expert trajectories" in card
+    assert "CARD.md" not in manifest["files"] and verify_dataset(folder) == []

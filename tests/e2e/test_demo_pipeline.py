@@ -170,3 +170,11 @@ def test_the_run_plots_are_there(demo):
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert sorted(p.name for p in (run / "again").iterdir()) == ["learning.png", "outcomes.png", "sdf_slice.png"]
+
+
+def test_the_policy_run_has_a_model_card(demo):
+    _, run, _ = demo
+    card = (run / "MODEL_CARD.md").read_text()
+    record = json.loads((run / "run.json").read_text())
+    assert f"dataset: `{record['dataset_id']}`" in card and f"artifact `{record['robot_sdf_artifact_id']}`" in card
+    assert "| samp | benchmark |" in card, "the benchmark results are in the card"

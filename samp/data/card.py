@@ -12,7 +12,11 @@ CARD = "CARD.md"
 
 
 def dataset_card(manifest: dict) -> str:
-    """Markdown: what the dataset is, how it was generated, its splits, how to use and share it."""
+    """Markdown: what the dataset is, how it was generated, its splits, how to use and share it. Datasets
+    that are not scenes with trajectories (robot SDF samples) get the general part only."""
+    if not (isinstance(manifest.get("robot"), dict) and isinstance(manifest.get("splits"), dict)
+            and isinstance(manifest.get("counts"), dict)):
+        return _general_card(manifest)
     cfg, counts = manifest.get("config") or {}, manifest.get("counts") or {}
     ref = f"{manifest.get('name')}@{manifest.get('id')}"
     splits = manifest.get("splits") or {}
@@ -54,3 +58,17 @@ def dataset_card(manifest: dict) -> str:
         json.dumps(manifest.get("parents") or []), "",
     ]
     return "\n".join(lines)
+
+
+def _general_card(manifest: dict) -> str:
+    ref = f"{manifest.get('name')}@{manifest.get('id')}"
+    code = manifest.get("code_version") or {}
+    code = code if isinstance(code, dict) else {}
+    return "\n".join([
+        f"# Dataset card: {ref}", "",
+        f"Created {manifest.get('created', '?')} by samp {code.get('package', '?')} (git {code.get('git_commit', '?')}).", "",
+        f"{len(manifest.get('files') or {})} data files, listed with their sizes and sha256 in manifest.json, "
+        "which also holds the configuration that made them; the id is the hash of the data files.", "",
+        f"Check a copy with `python -m samp.data verify dataset={ref}`; share the whole folder.", "",
+        "## Parents", "", json.dumps(manifest.get("parents") or []), "",
+    ])

@@ -4,11 +4,16 @@
 camera that makes them) and are re-exported here: a `Scan` is the sensor position and, in the robot base
 frame, the surface points it measured and the ends of rays seen free.
 
-Files hold points only. PLY: ascii, binary_little_endian or binary_big_endian, a `vertex` element
-with float or double `x`, `y`, `z` properties (other properties and elements are skipped; list
-properties are allowed after the vertex element only). PCD (the Point Cloud Library's format, v0.7):
-DATA ascii or binary, with x, y, z among its fields (others are skipped). NPY: a float array (N, 3), or (..., 3) such as an
-organised (H, W, 3) cloud; non-finite points (a sensor's invalid pixels) are dropped on reading.
+Files hold points only.
+- PLY: ascii, binary_little_endian or binary_big_endian, a `vertex` element with float or double `x`, `y`,
+  `z` properties (other properties and elements are skipped; list properties are allowed after the vertex
+  element only). Written by trimesh; read here rather than by trimesh, which accepts a file cut short (a
+  header announcing 3 vertices over 1 row of data loads as 1 point) and answers other damage with an
+  IndexError or KeyError, where a user needs to be told what is wrong.
+- PCD (the Point Cloud Library's format, v0.7): DATA ascii or binary, x, y, z among its fields (others
+  are skipped).
+- NPY: a float array (N, 3), or (..., 3) such as an organised (H, W, 3) cloud.
+Non-finite points (a sensor's invalid pixels) are dropped on reading.
 """
 
 from __future__ import annotations
@@ -138,16 +143,10 @@ def save_point_cloud(path: str | Path, points, ascii: bool = False) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() == ".npy":
         np.save(path, points)
-    elif path.suffix.lower() == ".ply":
-        fmt = "ascii" if ascii else "binary_little_endian"
-        header = (f"ply\nformat {fmt} 1.0\ncomment samp point cloud, robot base frame, metres\n"
-                  f"element vertex {len(points)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
-        with open(path, "wb") as f:
-            f.write(header.encode("ascii"))
-            if ascii:
-                np.savetxt(f, points, fmt="%.7g")
-            else:
-                f.write(points.astype("<f4").tobytes())
+    elif path.suffix.lower() == ".ply":  # trimesh's writer: a float32 x, y, z vertex element
+        import trimesh
+
+        path.write_bytes(trimesh.PointCloud(points).export(file_type="ply", encoding="ascii" if ascii else "binary"))
     elif path.suffix.lower() == ".pcd":
         header = (f"# .PCD v0.7 - samp point cloud, robot base frame, metres\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n"
                   f"TYPE F F F\nCOUNT 1 1 1\nWIDTH {len(points)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"

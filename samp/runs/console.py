@@ -125,6 +125,13 @@ class RunLog:
         logging.getLogger("samp").addHandler(self._handler)
         return self.path
 
+    def discard(self) -> None:
+        """Keep no log (a DDP rank other than 0, whose run folder is rank 0's): stop holding output in memory."""
+        import os
+
+        self._sink._file = open(os.devnull, "w", encoding="utf-8")
+        self.path = Path(os.devnull)
+
     def __exit__(self, *exc) -> None:
         sys.stdout.flush()
         sys.stderr.flush()

@@ -122,6 +122,8 @@ def _train(overrides: list[str], log, **info):
         if ckpt is not None:
             _trim_metrics(folder, ckpt, _trust(cfg))
         print(f"run folder: {folder.path}" + (f" (resuming from {ckpt.name})" if ckpt else ""), flush=True)
+    else:
+        log.discard()
 
     # The CSV logger writes into the run folder, which already holds .hydra/ and run.json by design.
     warnings.filterwarnings("ignore", message="Experiment logs directory .* exists and is not empty")

@@ -7,7 +7,7 @@ from __future__ import annotations
 __all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "BATCH_START", "BATCH_STEP", "BATCH_STEP_CLEAN", "BATCH_TRAJ", "BEST_CKPT",
            "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE", "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX",
            "LAST_CHECKPOINT", "METRICS_CSV", "METRICS_JSON", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL",
-           "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRAIN_PREFIX",
+           "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRAIN_LOG", "TRAIN_PREFIX",
            "VAL_PREFIX"]
 
 # ---------------------------------------------------------------- a run folder (DESIGN section 6)
@@ -26,6 +26,7 @@ RECORDING_RRD = "recording.rrd"
 RECONSTRUCTION_RRD = "reconstruction.rrd"  # grid_source=reconstructed: clouds, reconstructed and exact slices
 PLOTS_DIR = "plots"
 SUMMARY_PNG = "summary.png"  # losses and rates of a run, written after training
+TRAIN_LOG = "train.log"  # everything the run printed (samp.runs.console.RunLog)
 
 # ---------------------------------------------------------------- checkpoints
 CHECKPOINT_RECORD = "samp"  # {"kind": ..., ...}: what a policy checkpoint holds (samp.policy.registry)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.data.mcap_io import SceneRecord, read_scene_file, write_scene_file
+from samp.data.mcap_io import TIMED_FORMAT, SceneRecord, read_scene_file, write_scene_file
 from samp.data.registry import (DatasetError, datasets_root, file_problems, finalize_dataset, read_manifest,
                                 recreate_hint, resolve_ref)
 from samp.names import SPLIT_ALIASES, SPLITS
@@ -197,6 +197,11 @@ def _scene_record(ds: Dataset, i: int) -> tuple[SceneRecord, dict]:
                          trajectories=ds.trajectories[ds.traj_scene == i].numpy(), episodes=episodes,
                          eval_trajectories=np.stack(solutions) if solutions else np.zeros((0, 0, n)),
                          eval_episodes=records, has_eval_topics=ds.has_eval_problems)
+    if record.format_version >= TIMED_FORMAT:  # what the file carries for viewers, from the robot
+        from samp.data.generation import _robot, link_poses
+
+        robot = _robot(ds.manifest["robot"]["name"])
+        record.poses, record.ee_link, record.link_meshes = (lambda q: link_poses(robot, q)), robot.ee_link, robot.link_meshes
     info.update(split=ds.scene_split[i], episodes=len(episodes), trajectories=len(record.trajectories))
     if ds.has_eval_problems:
         info.update(eval_problems=len(records), eval_solved=len(solutions))

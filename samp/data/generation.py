@@ -184,10 +184,19 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         write_scene_file(out / job.file, SceneRecord(
             scene, job.index, job.split, list(robot.joint_names), _file_metadata(spec, job, robot.asset_hash),
             grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
-            eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes))
+            eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
+            poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
         return sidecar
     finally:
         torch.set_num_threads(threads)
+
+
+def link_poses(robot, q: np.ndarray) -> dict[str, np.ndarray]:
+    """q (T, n) radians -> link name -> (T, 4, 4) poses in the base frame (float64 forward kinematics)."""
+    with torch.no_grad():
+        fk = robot.fk(torch.as_tensor(np.asarray(q), dtype=robot.dtype))
+    names = [*robot.link_meshes, *([] if robot.ee_link in robot.link_meshes else [robot.ee_link])]
+    return {name: fk[name].double().cpu().numpy() for name in names}
 
 
 def _stacked(trajectories: list[np.ndarray], n: int) -> np.ndarray:
@@ -227,7 +236,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     finished scene files. When every scene of the spec is done, merge into a dataset and return its
     folder; otherwise (a shard of several) return None. A spec generated before (a finished dataset of the
     same config hash, no work under way) is found and returned, nothing planned."""
-    from tqdm.auto import tqdm
+    from samp.console import Progress
 
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
     if num_shards < 1 or (shard is not None and not 0 <= shard < num_shards):
@@ -248,7 +257,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     if len(todo) < len(jobs):
         print(f"{label}: resuming, {len(jobs) - len(todo)} of {len(jobs)} scenes already done in {work}")
     plans = sum(j.trajectories + j.eval_problems for j in todo)  # demonstrations and evaluation problems
-    bar = tqdm(total=plans, desc=label, unit="plan", disable=not progress, smoothing=0.05)
+    bar = Progress(plans, label, unit="plan", enabled=progress)  # a bar on a terminal, else a line now and then
     spec_dict = spec.resolved()
     spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__}
     try:

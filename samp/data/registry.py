@@ -29,7 +29,10 @@ __all__ = ["FORMAT_VERSION", "MANIFEST", "READABLE_VERSIONS", "SCENE_FILE_VERSIO
 
 FORMAT_VERSION = 2  # of the manifest; 2 added manifest_sha256
 READABLE_VERSIONS = (1, 2)
-SCENE_FILE_VERSION = 1  # the `format_version` inside each scene file's metadata (unchanged, so ids are too)
+# The `format_version` inside each scene file's metadata. 2: waypoints timed as the robot would move, /tf,
+# /robot and /ee_path for viewers, embedded mesh obstacles, voxel grids centred on the anchors (new ids);
+# files of format 1 are read as before (samp/data/mcap_io.py).
+SCENE_FILE_VERSION = 2
 MANIFEST = "manifest.json"
 MANIFEST_HASH = "manifest_sha256"
 ID_LENGTH = 12
@@ -67,7 +70,9 @@ def recreate_hint(folder: Path, manifest: dict | None = None, how: str | None = 
 
 
 def _data_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.rglob("*") if p.is_file() and p.name != MANIFEST)
+    from samp.data.card import CARD
+
+    return sorted(p for p in folder.rglob("*") if p.is_file() and p.name not in (MANIFEST, CARD))
 
 
 def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = None) -> Path:
@@ -87,6 +92,9 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), **manifest, "files": files}
     full[MANIFEST_HASH] = manifest_hash(full)
     (tmp / MANIFEST).write_text(json.dumps(full, indent=2, sort_keys=True))
+    from samp.data.card import CARD, dataset_card
+
+    (tmp / CARD).write_text(dataset_card(full))  # for people; like the manifest, not a hashed data file
     dest = root / name / ident
     dest.parent.mkdir(parents=True, exist_ok=True)
     try:

@@ -11,6 +11,7 @@ from dataclasses import asdict, replace
 
 import numpy as np
 
+from samp.console import Progress
 from samp.eval.checks import TrajectoryChecker, ee_poses, exact_robot, goal_errors, polyline_length
 from samp.eval.config import RolloutConfig, rollout_config
 from samp.eval.rollouts import RolloutResult, rollout
@@ -49,10 +50,12 @@ def resolve_robot(planner, problems: list[Problem], robot=None):
     return robot
 
 
-def _plan_all(planner, problems: list[Problem], robot) -> list[RolloutResult | None]:
+def _plan_all(planner, problems: list[Problem], robot, bar=None) -> list[RolloutResult | None]:
     """Answers of a trajectory planner as rollout results (None where it failed), goal errors at the end."""
     out = []
     for p in problems:
+        if bar is not None:
+            bar.update()
         answer = planner.plan(p)
         if answer.trajectory is None:
             out.append(RolloutResult(np.asarray(p.q_start)[None], f"failed: {answer.reason}", answer.solution_time,
@@ -64,8 +67,21 @@ def _plan_all(planner, problems: list[Problem], robot) -> list[RolloutResult | N
     return out
 
 
+def _rollout_batches(policy, problems: list[Problem], cfg: RolloutConfig, grids, checker_robot,
+                     bar) -> list[RolloutResult]:
+    """`rollout` one batch of `cfg.batch_size` at a time, so that progress can be shown between batches;
+    the batches are numbered as `rollout` numbers them."""
+    size = cfg.batch_size or len(problems)
+    out: list[RolloutResult] = []
+    for k, i in enumerate(range(0, len(problems), size)):
+        batch = rollout(policy, problems[i:i + size], replace(cfg, batch_size=None), grids, checker_robot)
+        out += [replace(r, batch=k) for r in batch]
+        bar.update(len(batch))
+    return out
+
+
 def _records(planner, problems: list[Problem], results: list[RolloutResult], checker: TrajectoryChecker,
-             cfg: RolloutConfig) -> list[dict]:
+             cfg: RolloutConfig, bar=None) -> list[dict]:
     robot = checker.robot
     records: list[dict | None] = [None] * len(problems)
     by_scene: dict[str, list[int]] = {}
@@ -74,6 +90,8 @@ def _records(planner, problems: list[Problem], results: list[RolloutResult], che
     for rows in by_scene.values():
         valid = [i for i in rows if results[i].position_error is not None]  # planner failures carry no path
         checks = dict(zip(valid, checker.check(problems[rows[0]].scene, [results[i].trajectory for i in valid])))
+        if bar is not None:
+            bar.update(len(rows))
         for i in rows:
             p, r = problems[i], results[i]
             c = checks.get(i) or {"collision": False, "first_collision_step": None, "collision_depth": 0.0,
@@ -120,7 +138,7 @@ def _time_one_at_a_time(policy, problems: list[Problem], records: list[dict], cf
 
 
 def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | None = None, *, robot=None,
-             grids: GridSource | None = None) -> dict:
+             grids: GridSource | None = None, progress_s: float | None = None) -> dict:
     """Evaluate `planner` on `problems` with the definitions of DESIGN section 4.
 
     Args:
@@ -129,6 +147,8 @@ def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | No
         config: a `RolloutConfig` or a mapping of its keys (max_steps, tolerances, sub-steps, stall, batch_size).
         robot: the robot to check with (default: the planner's, else the one the problems name).
         grids: where a policy's anchor grids come from (default: each scene's exact `anchor_grid`).
+        progress_s: show progress (rollout batches, plans, checks) on stderr: a bar on a terminal, else a
+            line every `progress_s` seconds and one per phase at its end; None: silent.
     Returns:
         {"planner": name, "metrics": {split: metrics, ..., "all": metrics}, "records": [one per problem],
          "config": the rollout config as a dict}. A step policy's outcomes come from batched rollouts
@@ -150,12 +170,18 @@ def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | No
     for i, p in enumerate(problems):
         splits.setdefault(p.split, []).append(i)
     records: list[dict | None] = [None] * len(problems)
+    name = planner_name(planner)
     with TrajectoryChecker(checker_robot, cfg.substep_resolution) as checker:
-        for rows in splits.values():  # one split at a time: its batch timings are its own
+        for split, rows in splits.items():  # one split at a time: its batch timings are its own
             subset = [problems[i] for i in rows]
-            results = rollout(planner, subset, cfg, grids, checker_robot) if is_policy else \
-                _plan_all(planner, subset, checker_robot)
-            for i, rec in zip(rows, _records(planner, subset, results, checker, cfg)):
+            with Progress(len(subset), f"  {name} {split}: {'rollouts' if is_policy else 'plans'}", "problem",
+                          every_s=progress_s or 0.0, enabled=progress_s is not None) as bar:
+                results = _rollout_batches(planner, subset, cfg, grids, checker_robot, bar) if is_policy else \
+                    _plan_all(planner, subset, checker_robot, bar)
+            with Progress(len(subset), f"  {name} {split}: checks", "problem", every_s=progress_s or 0.0,
+                          enabled=progress_s is not None) as bar:
+                checked = _records(planner, subset, results, checker, cfg, bar)
+            for i, rec in zip(rows, checked):
                 if rec["batch"] is not None:  # batches are numbered per split: make them unique over all
                     rec["batch"] = f"{problems[i].split}/{rec['batch']}"
                 records[i] = rec

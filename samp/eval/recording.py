@@ -1,10 +1,11 @@
-"""One Rerun recording per evaluation (`write_recording`): every rollout on one `frame` timeline.
+"""One Rerun recording per evaluation (`write_recording`): every rollout on one `frame` timeline, in the
+robot's base frame with z up, its recording id derived from where it is written (`recording_id_for`).
 
 Per rollout: the scene (re-drawn when it changes) with a horizontal SDF slice through the goal's
 height, the end-effector path of the planner (green: success, red: failure) and of the expert beside it
 (blue), start and goal markers, and a collision marker at the robot point deepest in an obstacle at the
 first colliding state. The first `record_rollouts` rollouts are animated step by step: the robot's
-meshes move along the trajectory, `record_points` robot points are coloured by their exact environment
+visual meshes (from its URDF) move along the trajectory, `record_points` robot points are coloured by their exact environment
 distance (the collision risk), and the closest point's distance and the goal error are plotted. The
 other rollouts get one frame (the robot at its final configuration), which keeps 100 or more rollouts a
 file of a few MB.
@@ -20,7 +21,18 @@ import torch
 from samp.eval.checks import exact_robot
 from samp.eval.problems import Problem
 
-__all__ = ["write_recording"]
+__all__ = ["APPLICATION_ID", "recording_id_for", "write_recording"]
+
+APPLICATION_ID = "samp_eval"
+
+
+def recording_id_for(path: str | Path, planner: str) -> str:
+    """The recording id of an evaluation written to `path`: a UUID derived from the file's absolute path
+    and the planner, so each run's recording is its own when several are opened together
+    (`rerun A.rrd B.rrd`), and writing the same run again gives the same id."""
+    import uuid
+
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, f"samp-eval:{planner}:{Path(path).resolve()}"))
 
 RISK_CLEAR = 0.1  # metres: points this far from obstacles are drawn fully green
 SLICE_N_E = 100  # anchors per axis of the drawn SDF slice (the paper's n_e)
@@ -59,9 +71,11 @@ class _Writer:
         self.frame, self.scene_key = 0, None
 
     def time(self, rollout: int, step: int) -> None:
+        # Two timelines that never go back: `frame` (each rollout a run of frames after the one before) and
+        # `rollout`. The step within a rollout is shown in the plots (`plots/step`), not as a timeline of its
+        # own: one that restarted at every rollout would lay all rollouts over each other.
         self.rec.set_time("frame", sequence=self.frame)
         self.rec.set_time("rollout", sequence=rollout)
-        self.rec.set_time("step", sequence=step)
 
     def scene(self, problem: Problem, goal_z: float) -> None:
         from samp.scene import anchor_points
@@ -123,6 +137,7 @@ class _Writer:
             poses = {name: fk[name][j].numpy() for name in robot.link_meshes}
             log_robot_state(rec, poses, pts[j], d[j], clear=RISK_CLEAR)
             if animate:
+                rec.log("plots/step", rr.Scalars(float(t)))
                 rec.log("plots/closest_point_distance", rr.Scalars(float(closest[j])))
                 rec.log("plots/goal_position_error", rr.Scalars(float(np.linalg.norm(ee[t] - goal))))
             self.frame += 1
@@ -160,9 +175,10 @@ def write_recording(path: str | Path, problems: list[Problem], result: dict, exp
     robot = exact_robot(robot)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    rec = rr.RecordingStream("samp_eval", recording_id=recording_id or f"eval-{result['planner']}-{path.parent.name}")
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or recording_id_for(path, result["planner"]))
     rec.save(path, default_blueprint=rollout_blueprint())
-    log_robot_meshes(rec, robot, entity="world/robot")
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # the robot's base frame: z up
+    log_robot_meshes(rec, robot, entity="world/robot", visual=True)
     rec.log("summary/metrics", rr.TextDocument(metrics_md or "(no metrics)", media_type="text/markdown"), static=True)
     by_split: dict[str, list[int]] = {}
     for i, p in enumerate(problems):

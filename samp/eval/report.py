@@ -26,6 +26,7 @@ from pathlib import Path
 __all__ = ["PROTOCOL", "Section", "dataset_sections", "evaluate_sections", "grid_source", "protocol_sections"]
 
 PROTOCOL = 2  # metrics.json without a "protocol" key: version 1 (training demonstrations as problems)
+PROGRESS_S = 10.0  # seconds between progress lines of an evaluation when stderr is not a terminal
 HARD = "_hard"  # group suffix: the problems whose straight joint-space line collides
 
 
@@ -120,15 +121,23 @@ def _evaluate_section(planner, section: Section, cfg, expert) -> dict:
     from samp.eval.loading import load_planner
 
     rollout = cfg.rollout()
-    t0 = time.perf_counter()
-    results = {planner.name: evaluate(planner, section.problems, rollout, grids=section.grids)}
-    print(f"  {section.name}: {planner.name} {time.perf_counter() - t0:.1f} s (rollouts and checks)", flush=True)
+    start = time.perf_counter()
+    print(f"{section.name}: {len(section.problems)} problems", flush=True)
+
+    def timed(name: str, who, grids) -> None:
+        t0 = time.perf_counter()
+        results[name] = evaluate(who, section.problems, rollout, grids=grids, progress_s=PROGRESS_S)
+        print(f"  {section.name}: {name} {time.perf_counter() - t0:.1f} s (rollouts and checks)", flush=True)
+
+    results: dict = {}
+    timed(planner.name, planner, section.grids)
     if cfg.compare_expert and planner.name != "expert":
-        results["expert"] = evaluate(expert, section.problems, rollout)
+        timed("expert", expert, None)
     if planner.name != "straight":  # always the floor (and it defines the hard subset)
         straight = load_planner("straight", robot=planner.robot if hasattr(planner, "robot") else None,
                                 max_step=cfg.straight_max_step, n_e=cfg.n_e)
-        results["straight"] = evaluate(straight, section.problems, rollout, grids=section.grids)
+        timed("straight", straight, section.grids)
+    print(f"{section.name}: {time.perf_counter() - start:.1f} s", flush=True)
     return results
 
 

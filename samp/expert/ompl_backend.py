@@ -96,12 +96,19 @@ def _state_array(state, n: int) -> np.ndarray:
     return np.fromiter((state[i] for i in range(n)), dtype=np.float64, count=n)
 
 
-def _make_motion_validator(ob, si, n: int, valid: Callable[[np.ndarray], np.ndarray], resolution: float):
+def _make_motion_validator(ob, space, n: int, valid: Callable[[np.ndarray], np.ndarray], resolution: float):
+    # The validator is built on a SpaceInformation of its own over the same space, not on the setup's: the
+    # binding keeps a validator's SpaceInformation alive, and the setup's holds the validator, so using it
+    # would make a reference cycle through C++ that Python's collector cannot break. Every attempt would
+    # then leak its setup, and each worker process would print nanobind's "leaked instance" report at exit.
+    # checkMotion below never reads the validator's SpaceInformation.
+    owner = ob.SpaceInformation(space)
+
     class BatchMotionValidator(ob.MotionValidator):
         """checkMotion(s1, s2): s1 is valid (OMPL's contract); s2 and the states between are checked."""
 
         def __init__(self):
-            super().__init__(si)
+            super().__init__(owner)
             self.count = 0
 
         def checkMotion(self, s1, s2, *last_valid):
@@ -136,7 +143,7 @@ def _setup(robot, valid: Callable[[np.ndarray], np.ndarray], resolution: float):
     ss = og.SimpleSetup(space)
     ss.setStateValidityChecker(lambda s: bool(valid(_state_array(s, n)[None])[0]))
     si = ss.getSpaceInformation()
-    mv = _make_motion_validator(ob, si, n, valid, resolution)
+    mv = _make_motion_validator(ob, space, n, valid, resolution)
     si.setMotionValidator(mv)
     return ss, space, si, mv
 

@@ -190,15 +190,15 @@ def plan_scene(robot, scene, count: int, seed: int, cfg: ExpertConfig | dict | s
                progress: bool = False) -> list[PlanResult]:
     """Sample `count` problems in `scene` (`samp.expert.problems.sample_problems`) and plan each; a problem
     without a valid goal is a failed `PlanResult` with its reason. Seeded: same seed, same results."""
-    from tqdm.auto import tqdm
-
+    from samp.console import Progress
     from samp.expert.problems import sample_problems
 
     cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
     with make_planner(robot, scene, cfg) as planner:
         problems = sample_problems(robot, scene, count, seed, cfg, world=getattr(planner, "world", None))
         results = []
-        for i, problem in enumerate(tqdm(problems, desc=f"expert {scene.name}", disable=not progress, unit="traj")):
+        bar = Progress(len(problems), f"expert {scene.name}", unit="traj", enabled=progress)
+        for i, problem in enumerate(problems):
             if problem.q_goal is None:
                 result = PlanResult(False, None, problem.reason, {"planner": cfg.planner, "backend": cfg.backend,
                                                                   "attempts": 0, "planning_time": 0.0}, problem.q_start)
@@ -206,4 +206,6 @@ def plan_scene(robot, scene, count: int, seed: int, cfg: ExpertConfig | dict | s
                 result = planner.plan(problem.q_start, problem.q_goal, seed=derive_seed(seed, i))
             result.stats.update(goal_kind=problem.kind, goal_pose=None if problem.goal_pose is None else problem.goal_pose.tolist())
             results.append(result)
+            bar.update()
+        bar.close()
     return results

@@ -1,13 +1,19 @@
-"""Point clouds: reading and writing clouds as PLY or NPY files, and a `Scan` from a user's cloud file.
+"""Point clouds: reading and writing clouds as PLY, PCD or NPY files, and a `Scan` from a user's cloud file.
 
 `Scan` and `DepthView`, what a depth camera produces, live in the sim layer (`samp.sim.scan`, beside the
 camera that makes them) and are re-exported here: a `Scan` is the sensor position and, in the robot base
 frame, the surface points it measured and the ends of rays seen free.
 
-Files hold points only. PLY: ascii, binary_little_endian or binary_big_endian, a `vertex` element
-with float or double `x`, `y`, `z` properties (other properties and elements are skipped; list
-properties are allowed after the vertex element only). NPY: a float array (N, 3), or (..., 3) such as an
-organised (H, W, 3) cloud; non-finite points (a sensor's invalid pixels) are dropped on reading.
+Files hold points only.
+- PLY: ascii, binary_little_endian or binary_big_endian, a `vertex` element with float or double `x`, `y`,
+  `z` properties (other properties and elements are skipped; list properties are allowed after the vertex
+  element only). Written by trimesh; read here rather than by trimesh, which accepts a file cut short (a
+  header announcing 3 vertices over 1 row of data loads as 1 point) and answers other damage with an
+  IndexError or KeyError, where a user needs to be told what is wrong.
+- PCD (the Point Cloud Library's format, v0.7): DATA ascii or binary, x, y, z among its fields (others
+  are skipped).
+- NPY: a float array (N, 3), or (..., 3) such as an organised (H, W, 3) cloud.
+Non-finite points (a sensor's invalid pixels) are dropped on reading.
 """
 
 from __future__ import annotations
@@ -90,7 +96,7 @@ def _ply_vertices(f, path: Path, fmt: str, elements) -> np.ndarray:
 
 
 def load_point_cloud(path: str | Path) -> np.ndarray:
-    """Read a `.ply` or `.npy` point cloud -> (N, 3) float64, non-finite points dropped (with a warning
+    """Read a `.ply`, `.pcd` or `.npy` point cloud -> (N, 3) float64, non-finite points dropped (with a warning
     giving their share: invalid pixels of an organised cloud are normal, a mostly-NaN cloud is not).
 
     Raises FileNotFoundError for a missing file and ValueError (saying what was wrong) for a bad one, one
@@ -104,6 +110,9 @@ def load_point_cloud(path: str | Path) -> np.ndarray:
         with open(path, "rb") as f:
             fmt, elements = _ply_header(f, path)
             points = _ply_vertices(f, path, fmt, elements)
+    elif suffix == ".pcd":
+        with open(path, "rb") as f:
+            points = _pcd_points(f, path)
     elif suffix == ".npy":
         try:
             arr = np.load(path, allow_pickle=False)
@@ -114,7 +123,7 @@ def load_point_cloud(path: str | Path) -> np.ndarray:
                              f"and shape {arr.shape}")
         points = arr.reshape(-1, 3).astype(np.float64)
     else:
-        raise ValueError(f"{path}: unknown point cloud format {path.suffix!r}; expected .ply or .npy")
+        raise ValueError(f"{path}: unknown point cloud format {path.suffix!r}; expected .ply, .pcd or .npy")
     if len(points) == 0:
         raise ValueError(f"{path} holds no points: a reconstruction from it would be an empty world")
     finite = np.isfinite(points).all(axis=1)
@@ -129,15 +138,19 @@ def load_point_cloud(path: str | Path) -> np.ndarray:
 
 
 def save_point_cloud(path: str | Path, points, ascii: bool = False) -> Path:
-    """Write (N, 3) points as `.ply` (binary little-endian float32, or ascii) or `.npy` (float64)."""
+    """Write (N, 3) points as `.ply` or `.pcd` (binary little-endian float32, or ascii) or `.npy` (float64)."""
     path, points = Path(path), as_points(points, "points")
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() == ".npy":
         np.save(path, points)
-    elif path.suffix.lower() == ".ply":
-        fmt = "ascii" if ascii else "binary_little_endian"
-        header = (f"ply\nformat {fmt} 1.0\ncomment samp point cloud, robot base frame, metres\n"
-                  f"element vertex {len(points)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
+    elif path.suffix.lower() == ".ply":  # trimesh's writer: a float32 x, y, z vertex element
+        import trimesh
+
+        path.write_bytes(trimesh.PointCloud(points).export(file_type="ply", encoding="ascii" if ascii else "binary"))
+    elif path.suffix.lower() == ".pcd":
+        header = (f"# .PCD v0.7 - samp point cloud, robot base frame, metres\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n"
+                  f"TYPE F F F\nCOUNT 1 1 1\nWIDTH {len(points)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+                  f"POINTS {len(points)}\nDATA {'ascii' if ascii else 'binary'}\n")
         with open(path, "wb") as f:
             f.write(header.encode("ascii"))
             if ascii:
@@ -145,8 +158,61 @@ def save_point_cloud(path: str | Path, points, ascii: bool = False) -> Path:
             else:
                 f.write(points.astype("<f4").tobytes())
     else:
-        raise ValueError(f"{path}: unknown point cloud format {path.suffix!r}; expected .ply or .npy")
+        raise ValueError(f"{path}: unknown point cloud format {path.suffix!r}; expected .ply, .pcd or .npy")
     return path
+
+
+PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
+             ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
+
+
+def _pcd_points(f, path: Path) -> np.ndarray:
+    """The x, y, z fields of a PCD file (point cloud library format, v0.7): DATA ascii or binary
+    (little-endian, point after point); binary_compressed is refused with what to do."""
+    fields: dict[str, list[str]] = {}
+    for _ in range(64):  # the header is a handful of lines
+        raw = f.readline()
+        if not raw:
+            break
+        line = raw.decode("ascii", errors="replace").strip()
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        fields[key.upper()] = values
+        if key.upper() == "DATA":
+            break
+    else:
+        raise ValueError(f"{path}: the PCD header has no DATA line within 64 lines; the file is not PCD")
+    missing = [k for k in ("FIELDS", "SIZE", "TYPE", "POINTS", "DATA") if k not in fields]
+    if missing:
+        raise ValueError(f"{path}: the PCD header lacks {missing}; the file is cut short or not PCD")
+    names, sizes, types = fields["FIELDS"], [int(v) for v in fields["SIZE"]], fields["TYPE"]
+    counts = [int(v) for v in fields.get("COUNT", ["1"] * len(names))]
+    if not {"x", "y", "z"} <= set(names):
+        raise ValueError(f"{path}: the PCD fields are {names}; x, y and z are needed")
+    if not len(names) == len(sizes) == len(types) == len(counts):
+        raise ValueError(f"{path}: the PCD header's FIELDS, SIZE, TYPE and COUNT lines differ in length")
+    try:
+        dtype = np.dtype([(n, "<" + PCD_TYPES[(t, s)]) if c == 1 else (n, "<" + PCD_TYPES[(t, s)], (c,))
+                          for n, s, t, c in zip(names, sizes, types, counts)])
+    except KeyError as err:
+        raise ValueError(f"{path}: unknown PCD field type/size {err.args[0]}") from None
+    n, data = int(fields["POINTS"][0]), fields["DATA"][0].lower()
+    if data == "ascii":
+        rows = np.loadtxt(f, dtype=np.float64, ndmin=2, max_rows=n) if n else np.zeros((0, sum(counts)))
+        if len(rows) != n:
+            raise ValueError(f"{path}: the PCD header says {n} points, the file holds {len(rows)}")
+        column = {name: int(np.sum(counts[:i])) for i, name in enumerate(names)}
+        return rows[:, [column["x"], column["y"], column["z"]]]
+    if data == "binary":
+        raw = f.read(dtype.itemsize * n)
+        if len(raw) != dtype.itemsize * n:
+            raise ValueError(f"{path}: the PCD header says {n} points ({dtype.itemsize * n} bytes), the file holds "
+                             f"{len(raw)} bytes of data; it is cut short")
+        table = np.frombuffer(raw, dtype=dtype)
+        return np.stack([table["x"], table["y"], table["z"]], axis=1).astype(np.float64)
+    raise ValueError(f"{path}: PCD DATA {data!r} is not read here (ascii or binary are); convert it, e.g. with "
+                     "Open3D or pcl_convert_pcd_ascii_binary")
 
 
 def scan_from_file(path: str | Path, origin=None, transform=None, name: str | None = None) -> Scan:

@@ -14,9 +14,12 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-import pybullet as pb
 import torch
 from scipy.spatial.transform import Rotation
+
+from samp.console import import_pybullet
+
+pb = import_pybullet()  # without its build-time banner
 
 __all__ = ["LinkBodies", "MESH_MARGIN"]
 

@@ -6,19 +6,59 @@ import numpy as np
 import rerun as rr
 import torch
 
-__all__ = ["SHELL_COLORS", "log_robot_meshes", "log_robot_pose"]
+__all__ = ["SHELL_COLORS", "log_robot_meshes", "log_robot_pose", "visual_meshes"]
 
 # One colour per shell offset, innermost first (RGB); more shells cycle.
 SHELL_COLORS = np.array([[230, 60, 60], [240, 170, 40], [60, 140, 230], [120, 200, 90]], dtype=np.uint8)
 LINK_COLOR = (200, 200, 210, 255)
 
 
-def log_robot_meshes(rec: rr.RecordingStream, robot, entity: str = "robot") -> None:
-    """Log every collision link's mesh (link frame) as static data under `{entity}/links/{link}`."""
-    for name, mesh in robot.link_meshes.items():
+def visual_meshes(robot) -> dict[str, "trimesh.Trimesh"]:
+    """link name -> the link's `<visual>` meshes from the URDF, in the link frame (with the colours their
+    files carry, as vertex colours), for every link of `robot.link_meshes`. A link whose visuals are not
+    meshes, or cannot be read, keeps its collision mesh."""
+    import xml.etree.ElementTree as ET
+
+    import trimesh
+
+    from samp.robot.urdf import _floats, _resolve_mesh, origin_matrix
+
+    root = ET.parse(robot.urdf.path).getroot()
+    out = {}
+    for link in root.findall("link"):
+        name = link.get("name")
+        if name not in robot.link_meshes:
+            continue
+        parts = []
+        for visual in link.findall("visual"):
+            shape = visual.find("geometry/mesh")
+            if shape is None:
+                continue
+            try:
+                mesh = trimesh.load(_resolve_mesh(shape.get("filename", ""), robot.urdf.path.parent), force="mesh")
+            except (FileNotFoundError, ValueError):
+                continue
+            if hasattr(mesh.visual, "to_color"):  # a textured mesh: its colours per vertex
+                mesh.visual = mesh.visual.to_color()
+            mesh.apply_scale(_floats(shape.get("scale"), (1.0, 1.0, 1.0)))
+            mesh.apply_transform(origin_matrix(visual))
+            parts.append(mesh)
+        out[name] = trimesh.util.concatenate(parts) if parts else robot.link_meshes[name]
+    return out
+
+
+def log_robot_meshes(rec: rr.RecordingStream, robot, entity: str = "robot", visual: bool = False) -> None:
+    """Log every collision link's mesh (link frame) as static data under `{entity}/links/{link}`; with
+    `visual`, the URDF's visual meshes in their colours instead (`visual_meshes`)."""
+    meshes = visual_meshes(robot) if visual else robot.link_meshes
+    for name, mesh in meshes.items():
+        colors = None
+        if visual and getattr(mesh.visual, "kind", None) == "vertex":
+            colors = np.asarray(mesh.visual.vertex_colors)[:, :3]
         rec.log(f"{entity}/links/{name}", rr.Mesh3D(
             vertex_positions=mesh.vertices.astype(np.float32), triangle_indices=mesh.faces.astype(np.uint32),
-            vertex_normals=mesh.vertex_normals.astype(np.float32), albedo_factor=LINK_COLOR), static=True)
+            vertex_normals=mesh.vertex_normals.astype(np.float32), vertex_colors=colors,
+            albedo_factor=None if colors is not None else LINK_COLOR), static=True)
 
 
 def log_robot_pose(rec: rr.RecordingStream, robot, q: torch.Tensor, entity: str = "robot") -> None:

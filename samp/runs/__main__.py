@@ -7,6 +7,7 @@ usage: python -m samp.runs COMMAND [key=value ...]
   compare RUN RUN ... [metrics=M,M]                side by side: lineage, differing config, metrics
   table DIR by=KEY [metrics=M,M] [out=PREFIX]      one row per value of KEY (mean ± std [interval]), .md and .csv
   plot DIR by=KEY [metrics=M,M] [kind=curves|bars] [x=epoch|step] [out=FILE.png]
+  plot RUN kind=run [out=DIR]          one run's learning curves, outcomes and SDF slice (RUN/plots/)
                                                    learning curves from metrics.csv, or bars of final metrics
   paper-tables [root=DIR] [out=DIR]                Table I and Table II on the benchmark, from the runs that exist
 
@@ -134,10 +135,18 @@ def _plot(args: list[str]) -> None:
     from samp.runs.tables import default_metrics
 
     folders, opts, _ = _args("plot", args, ("by", "metrics", "out", "kind", "x"), subject="dir")
-    folder, by = _one("plot", "sweep (or runs)", folders), _by("plot", opts)
     kind, x = opts.get("kind", "curves"), opts.get("x", "epoch")
+    if kind == "run":  # one run's pictures (samp.runs.figures), into RUN/plots/ or out=DIR
+        from samp.runs.figures import plot_run
+        from samp.runs.registry import load_run
+
+        run = load_run(_root(_one("plot", "run", folders)))
+        for path in plot_run(run, Path(opts["out"]) if opts.get("out") else None):
+            print(f"wrote {path}")
+        return
+    folder, by = _one("plot", "sweep (or runs)", folders), _by("plot", opts)
     if kind not in ("curves", "bars") or x not in ("epoch", "step"):
-        raise ValueError(f"plot takes kind=curves|bars and x=epoch|step, got kind={kind} x={x}")
+        raise ValueError(f"plot takes kind=curves|bars|run and x=epoch|step, got kind={kind} x={x}")
     runs = _runs(folder)
     metrics, tag = opts.get("metrics"), by.replace("/", "_")
     if kind == "curves":

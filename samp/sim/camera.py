@@ -27,11 +27,13 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
-import pybullet as pb
 import torch
 
 from samp.scene.model import Box, Cylinder, MeshObstacle, Scene, Sphere
 from samp.sim.scan import DepthView, Scan
+from samp.console import import_pybullet
+
+pb = import_pybullet()  # without its build-time banner
 
 __all__ = ["Camera", "CameraSet", "DepthImage", "Renderer", "back_project", "camera_set", "linear_depth",
            "load_camera_set", "robot_volume"]

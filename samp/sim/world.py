@@ -27,13 +27,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
 import torch
 import trimesh
 
 from samp.scene.model import Box, Cylinder, MeshObstacle, Obstacle, Scene, Sphere
 from samp.scene.sdf import obstacle_parts
 from samp.robot.bodies import MESH_MARGIN, LinkBodies
+from samp.console import import_pybullet
+
+pb = import_pybullet()  # without its build-time banner
 
 __all__ = ["World", "DEFAULT_MAX_DISTANCE", "LIMIT_TOLERANCE"]
 

@@ -36,7 +36,7 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     """The trained policy `system` under the evaluation protocol: the stored evaluation problems of its
     dataset's validation and training scenes (`evaluation.problems` per split) and the standing benchmark
     (`evaluation.benchmark`), with the expert and the straight line beside it; writes `<run_dir>/eval/`
-    and the summary plot."""
+    and the plots (`samp.runs.figures`)."""
     from samp.eval.benchmark import open_benchmark
     from samp.eval.config import load_eval_config
     from samp.eval.report import evaluate_sections, protocol_sections
@@ -60,7 +60,11 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
         from samp.runs.plots import plot_run_summary
         from samp.runs.registry import load_run
 
-        print(f"plot: {plot_run_summary(load_run(run_dir), Path(run_dir) / PLOTS_DIR / SUMMARY_PNG)}", flush=True)
+        from samp.runs.figures import plot_run
+
+        run = load_run(run_dir)
+        for path in [plot_run_summary(run, Path(run_dir) / PLOTS_DIR / SUMMARY_PNG), *plot_run(run)]:
+            print(f"plot: {path}", flush=True)
     except Exception as err:  # noqa: BLE001 - reported, not raised
         print(f"warning: the summary plot was not written ({type(err).__name__}: {err})", flush=True)
     return _flat(report, system.kind)
@@ -93,7 +97,11 @@ def after_fit(cfg, system, datamodule, run_dir: Path) -> dict:
     from samp.robot_sdf.system import RobotSDFSystem
 
     if isinstance(system, PolicySystemBase):
-        return evaluate_policy(system, datamodule, run_dir, cfg.evaluation)
+        metrics = evaluate_policy(system, datamodule, run_dir, cfg.evaluation)
+        from samp.runs.cards import write_model_card
+
+        print(f"model card: {write_model_card(run_dir)}", flush=True)
+        return metrics
     if isinstance(system, RobotSDFSystem):
         evaluation = cfg.get("robot_sdf_eval")
         return export_robot_sdf(system, run_dir, None if evaluation is None else OmegaConf.to_container(evaluation))

@@ -156,13 +156,14 @@ def interrupted_hint(err: BaseException, folder) -> str:
 
 
 def _print_outputs(path: Path) -> None:
-    """The end of a run on the terminal: its evaluation table and where its files are."""
+    """The end of a run on the terminal: where its files are (the evaluation printed its table already)."""
     from samp.eval.names import EVAL_DIR, METRICS_MD, RECORDING_RRD
+    from samp.names import TRAIN_LOG
 
-    table = path / EVAL_DIR / METRICS_MD
-    if table.is_file():
-        print("\n" + table.read_text().strip() + "\n")
     print(f"done: {path}")
+    for name, item in (("table", path / EVAL_DIR / METRICS_MD), ("log", path / TRAIN_LOG)):
+        if item.is_file():
+            print(f"  {name}: {item}")
     for name, found in (("recording", sorted({*path.glob(f"**/{RECORDING_RRD}"), *path.glob("*.rrd")})),
                         ("plots", sorted(path.glob("plots/*.png")))):
         for item in found:

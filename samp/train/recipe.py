@@ -89,17 +89,27 @@ def _open_folder(cfg):
 def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: str | Path | None = None,
           paths: dict | None = None, **info):
     """Run the recipe; returns the `RunFolder`. `info` goes into run.json (a sweep names itself there).
+    What it prints is also kept in the run folder's `train.log`.
 
     Folders a caller already holds are passed as data, never spliced into override strings (a folder
     name may hold `=`, `,`, quotes or spaces, which Hydra's override grammar would read): `run_dir` (a
     new run in that folder), `resume` (continue that run) and `paths` (`{"runs_dir": ..., "datasets_dir":
     ...}`, set after composition) act as the overrides of the same names."""
+    from samp.names import TRAIN_LOG
+    from samp.runs.console import RunLog
+
+    with RunLog(TRAIN_LOG) as log:
+        return _train(overrides, log, run_dir=run_dir, resume=resume, paths=paths, **info)
+
+
+def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
     import time
 
     import pytorch_lightning as pl
     from hydra.utils import instantiate
     from omegaconf import OmegaConf, open_dict
 
+    from samp.runs.console import quiet_lightning, trainer_console
     from samp.runs.distributed import is_rank_zero
     from samp.runs.folder import Terminated
     from samp.runs.loggers import finish_loggers
@@ -125,10 +135,13 @@ def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: st
         cfg.run_dir = str(folder.path)
     rank_zero = is_rank_zero()
     if rank_zero:
+        log.attach(folder.path)
         folder.write_config(OmegaConf.to_yaml(cfg, resolve=True), overrides)
         if ckpt is not None:
             _trim_metrics(folder, ckpt, _trust(cfg))
         print(f"run folder: {folder.path}" + (f" (resuming from {ckpt.name})" if ckpt else ""), flush=True)
+    else:
+        log.discard()
 
     # The CSV logger writes into the run folder, which already holds .hydra/ and run.json by design.
     warnings.filterwarnings("ignore", message="Experiment logs directory .* exists and is not empty")
@@ -141,7 +154,10 @@ def train(overrides: list[str], *, run_dir: str | Path | None = None, resume: st
             system = instantiate(cfg.system)
             callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
             loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
-            trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False, default_root_dir=folder.path)
+            console, progress = trainer_console(cfg.trainer)  # a progress bar on a terminal, else lines
+            quiet_lightning()  # before the Trainer, which logs its tip when it is made
+            trainer = instantiate(cfg.trainer, callbacks=callbacks + progress, logger=loggers or False,
+                                  default_root_dir=folder.path, **console)
             start = time.perf_counter()
             with _safe_resume(ckpt, cfg):
                 trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None,

@@ -257,7 +257,8 @@ def test_plain_mcap_reader_and_foxglove_schemas(tiny):
         assert schemas == {"/scene": "foxglove.SceneUpdate", "/scene/spec": "samp.SceneSpec", "/episode": "samp.Episode",
                            "/trajectory": "foxglove.JointStates", "/eval/episode": "samp.Episode",
                            "/eval/trajectory": "foxglove.JointStates", "/sdf/n12": "foxglove.VoxelGrid",
-                           "/sdf/n16": "foxglove.VoxelGrid"}
+                           "/sdf/n16": "foxglove.VoxelGrid", "/tf": "foxglove.FrameTransforms",
+                           "/robot": "foxglove.SceneUpdate", "/ee_path": "foxglove.SceneUpdate"}
         assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
         meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         assert meta["samp.dataset"]["dataset"] == "tiny" and meta["samp.dataset"]["split"] == "train"
@@ -272,7 +273,8 @@ def test_plain_mcap_reader_and_foxglove_schemas(tiny):
         assert len(evaluation) == 2 and {e["purpose"] for e in evaluation} == {"evaluation"}
         solution = next(reader.iter_decoded_messages(topics=["/eval/trajectory"]))
         assert [j.name for j in solution.decoded_message.joints] == [f"panda_joint{i}" for i in range(1, 8)]
-        assert solution.message.log_time >= 3 * 1_000_000, "evaluation problems play after the 3 demonstrations"
+        last_demo = max(m.log_time for _, _, m in reader.iter_messages(topics=["/trajectory"]))
+        assert solution.message.log_time > last_demo, "evaluation problems play after the demonstrations"
 
 
 def test_unknown_reference_lists_the_available_ones(tiny):
@@ -319,3 +321,92 @@ def test_spec_without_a_valid_start_is_a_clear_error(tmp_path):
 def test_bad_specs_say_what_is_wrong(bad, message):
     with pytest.raises(ValueError, match=message):
         load_spec({**TINY, **bad})
+
+
+def _decoded(path, topics):
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        return [(m.message, m.decoded_message) for m in reader.iter_decoded_messages(topics=topics)]
+
+
+def test_scene_files_play_in_foxglove_with_the_arm_moving(tiny, robots):
+    """Each waypoint's /tf holds every link's pose from forward kinematics (checked against the robot's own
+    FK of the stored joint angles), at the waypoint's time; a trajectory lasts its joint-space length at
+    the nominal joint speed; the robot's link meshes and the end-effector path are there; voxel cells are
+    centred on the anchors; mesh obstacles are embedded."""
+    from scipy.spatial.transform import Rotation
+
+    from samp.data import foxglove as fox
+
+    robot, path = robots["panda"], tiny[0] / "scene_0000.mcap"
+    states = _decoded(path, ["/trajectory"])
+    tfs = {m.log_time: msg for m, msg in _decoded(path, ["/tf"])}
+    assert len(tfs) == len(states) + len(_decoded(path, ["/eval/trajectory"]))  # one per waypoint
+    q = np.array([[j.position for j in msg.joints] for _, msg in states])
+    fk = robot.fk(torch.as_tensor(q, dtype=torch.float64))
+    for (meta, _), k in zip(states, range(len(states))):
+        tf = {t.child_frame_id: t for t in tfs[meta.log_time].transforms}
+        assert set(robot.link_meshes) <= set(tf), sorted(tf)
+        for name in robot.link_meshes:
+            t, T = tf[name], fk[name][k].numpy()
+            assert t.parent_frame_id == "base"
+            np.testing.assert_allclose([t.translation.x, t.translation.y, t.translation.z], T[:3, 3], atol=1e-9)
+            R = Rotation.from_quat([t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w]).as_matrix()
+            np.testing.assert_allclose(R, T[:3, :3], atol=1e-9)
+    # timing: the first trajectory, from its waypoints alone
+    first = [i for i, (m, _) in enumerate(states) if m.sequence == 0]
+    traj = q[first[0]:first[1]]
+    times = np.array([m.log_time for m, _ in states[first[0]:first[1]]])
+    length = np.linalg.norm(np.diff(traj, axis=0), axis=1).sum()
+    assert np.all(np.diff(times) >= 0) and times[0] == 0
+    assert abs((times[-1] - times[0]) / 1e9 - max(length / fox.JOINT_SPEED, fox.MIN_DURATION)) < 1e-6
+    assert states[first[1]][0].log_time >= times[-1] + fox.GAP * 1e9  # the next one starts after a pause
+    (robot_msg,) = _decoded(path, ["/robot"])
+    assert {e.frame_id for e in robot_msg[1].entities} == set(robot.link_meshes)
+    assert all(e.models[0].data[:4] == b"glTF" for e in robot_msg[1].entities)
+    paths = _decoded(path, ["/ee_path"])
+    ee = fk[robot.ee_link][:, :3, 3].numpy()
+    pts = np.array([[p.x, p.y, p.z] for p in paths[0][1].entities[0].lines[0].points])
+    np.testing.assert_allclose(pts, ee[first[0]:first[1]], atol=1e-9)
+    # voxel cells centred on the anchors: cell i's centre is pose + (i + 1/2) * cell_size = lo + i * spacing
+    ds = open_dataset(tiny[0])
+    (_, grid), = _decoded(path, ["/sdf/n12"])
+    lo, hi = np.asarray(ds.scenes[0].bounds[0]), np.asarray(ds.scenes[0].bounds[1])
+    spacing = (hi - lo) / 11
+    origin = np.array([grid.pose.position.x, grid.pose.position.y, grid.pose.position.z])
+    np.testing.assert_allclose(origin + 0.5 * spacing, lo, atol=1e-12)
+    np.testing.assert_allclose(origin + 11.5 * spacing, hi, atol=1e-12)
+
+
+def test_format_1_scene_files_keep_their_layout_and_read_the_same(tiny, tmp_path):
+    """A dataset of the first scene-file format (ids made before) is rewritten byte for byte in its own
+    layout, and reads back to the same trajectories as the current format."""
+    ds = open_dataset(tiny[0])
+    for meta in ds.metadata:
+        meta["format_version"] = "1"
+    old = open_dataset(write_dataset(ds, name="format1", root=tmp_path))
+    again = write_dataset(old, name="format1b", root=tmp_path)
+    for f in sorted(old.path.glob("*.mcap")):
+        assert (again / f.name).read_bytes() == f.read_bytes()
+    topics = {m.channel_id for m, _ in _decoded(old.path / "scene_0000.mcap", ["/tf"])}
+    assert topics == set(), "format 1 files have no /tf"
+    times = [m.log_time for m, _ in _decoded(old.path / "scene_0000.mcap", ["/trajectory"])]
+    assert times[:3] == [0, 1, 2]  # waypoint t of episode 0 at t ns, as format 1 wrote them
+    np.testing.assert_array_equal(old.trajectories.numpy(), open_dataset(tiny[0]).trajectories.numpy())
+    assert len(old.eval_problems) == len(open_dataset(tiny[0]).eval_problems)
+
+
+def test_every_dataset_has_a_card_outside_its_id(tiny, tmp_path):
+    """CARD.md says what the dataset is (counts, splits, how to open and verify it), beside the manifest; it is
+    not a hashed data file, so a dataset with its card still verifies and its id is the data's alone."""
+    folder = tiny[0]
+    card = (folder / "CARD.md").read_text()
+    manifest = read_manifest(folder)
+    assert f"# Dataset card: tiny@{manifest['id']}" in card
+    for scene in manifest["splits"]["val"]:
+        assert scene in card
+    assert f"{manifest['counts']['trajectories']} expert trajectories" in card
+    assert "CARD.md" not in manifest["files"] and verify_dataset(folder) == []

@@ -41,7 +41,7 @@ def demo(tmp_path_factory, _isolated_cache):
     cmd = [sys.executable, "-m", "samp.train", "+experiment=quickstart", "datamodule.dataset=smoke",
            f"paths.runs_dir={tmp / 'runs'}", f"paths.datasets_dir={tmp / 'datasets'}",
            "datamodule.n_e=16", "datamodule.val_samples=50", "trainer.max_epochs=1",
-           "+trainer.limit_train_batches=4", "trainer.enable_progress_bar=false", "evaluation.problems=2",
+           "+trainer.limit_train_batches=4", "trainer.log_every_n_steps=2", "evaluation.problems=2",
            "evaluation.benchmark=smoke",
            "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env, cwd=tmp / "work")
@@ -52,7 +52,11 @@ def demo(tmp_path_factory, _isolated_cache):
     assert not changed, f"the pipeline wrote into the repository: {changed[:20]}"
     assert not any((tmp / "work").iterdir()), f"the pipeline wrote into its working folder: {list((tmp / 'work').iterdir())}"
     assert sorted(p.name for p in tmp.iterdir()) == ["datasets", "runs", "work"]
+    LOGS["stderr"] = out.stderr  # for the log test; the others read stdout
     return tmp, run, out.stdout
+
+
+LOGS: dict[str, str] = {}
 
 
 def test_the_dataset_was_built_and_verifies(demo):
@@ -158,3 +162,42 @@ def test_an_unknown_experiment_lists_the_available_ones():
                          timeout=300)
     assert out.returncode == 2, (out.returncode, out.stderr[-2000:])
     assert "Could not find 'experiment/quikstart'" in out.stderr and "quickstart" in out.stderr, out.stderr[-2000:]
+
+
+def test_the_log_is_quiet_and_kept_in_the_run_folder(demo):
+    """Captured as a cluster log would be (not a terminal): no progress redraws, no nanobind leak reports
+    from the dataset workers, no pybullet banner, no Lightning tip, the table once; train.log has it all."""
+    _, run, stdout = demo
+    log = stdout + LOGS["stderr"]
+    for noise in ("\r", "\x1b[", "nanobind: leaked", "pybullet build time", "Tip:"):
+        assert noise not in log, f"{noise!r} in the captured output:\n{log[-3000:]}"
+    assert log.count("| samp | val |") == 1, "the results table is printed more than once"
+    assert "epoch 0 done: step 4" in LOGS["stderr"], "no line of training progress in place of the bar"
+    kept = (run / "train.log").read_text()
+    assert f"run folder: {run}" in kept and "| samp | val |" in kept and "epoch 0 done" in kept
+    assert "GPU available:" in kept, "Lightning's own log lines are not in train.log"
+    assert "\r" not in kept
+
+
+def test_the_run_plots_are_there(demo):
+    """After training: the learning curves (with the learning rate logged in metrics.csv), the outcomes and
+    the SDF slice of an evaluated scene; `python -m samp.runs plot RUN kind=run` draws them again."""
+    _, run, stdout = demo
+    header = (run / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert any(h.startswith("lr-") for h in header), header
+    for name in ("learning.png", "outcomes.png", "sdf_slice.png"):
+        path = run / "plots" / name
+        assert path.is_file() and path.read_bytes()[:4] == b"\x89PNG", name
+        assert f"plot: {path}" in stdout
+    out = subprocess.run([sys.executable, "-m", "samp.runs", "plot", str(run), "kind=run", f"out={run / 'again'}"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in (run / "again").iterdir()) == ["learning.png", "outcomes.png", "sdf_slice.png"]
+
+
+def test_the_policy_run_has_a_model_card(demo):
+    _, run, _ = demo
+    card = (run / "MODEL_CARD.md").read_text()
+    record = json.loads((run / "run.json").read_text())
+    assert f"dataset: `{record['dataset_id']}`" in card and f"artifact `{record['robot_sdf_artifact_id']}`" in card
+    assert "| samp | benchmark |" in card, "the benchmark results are in the card"

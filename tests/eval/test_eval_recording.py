@@ -67,3 +67,37 @@ def test_the_drawn_sdf_plane_is_the_anchor_grids_slice(tiny_problems):
     grid = scene.anchor_grid(12).numpy()
     plane = np.asarray(scene.sdf(anchor_points(12, scene.bounds)[:, :, 5]))
     np.testing.assert_allclose(plane, np.take(grid, 5, axis=2), atol=1e-6)
+
+
+def _store_ids(rerun: str, path: Path) -> set[tuple[str, str]]:
+    """(application id, recording id) of every recording in an .rrd, as the Rerun CLI reads the file."""
+    import re
+
+    out = subprocess.run([rerun, "rrd", "print", str(path)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return set(re.findall(r'StoreId\(\s*Recording,\s*"([^"]+)",\s*"([^"]+)"', out.stdout))
+
+
+def test_two_runs_recordings_are_two_recordings_in_a_z_up_world(tiny_problems, panda, tmp_path):
+    """Recording ids come from where the evaluation is written, so `rerun A.rrd B.rrd` shows two recordings
+    rather than merging them; the world is z up (ViewCoordinates RIGHT_HAND_Z_UP, static, on /world)."""
+    ds, problems = tiny_problems
+    problems = problems[:2]
+    result = evaluate(StraightLinePolicy(panda), problems)
+    paths = [tmp_path / run / "eval" / "recording.rrd" for run in ("run_a", "run_b")]
+    for path in paths:
+        write_recording(path, problems, result, robot=panda, slice_n_e=8, record_rollouts=1, record_points=16)
+    rerun = _rerun()
+    (a,), (b,) = (_store_ids(rerun, p) for p in paths)
+    assert a[0] == b[0] == "samp_eval" and a[1] != b[1], (a, b)
+    out = subprocess.run([rerun, "rrd", "print", "-vvv", str(paths[0])], capture_output=True, text=True, timeout=300)
+    import re
+
+    found = re.search(r"entity_path: /world\s+│", out.stdout)
+    assert found, "no chunk on /world in the recording"
+    world = out.stdout[found.start():][:6000]
+    assert "ViewCoordinates:xyz" in world, world
+    # Rerun's ViewDir codes: Up 1, Right 3, Forward 5; RIGHT_HAND_Z_UP is X right, Y forward, Z up
+    assert "[[3, 5, 1]]" in world, world
+    write_recording(paths[0], problems, result, robot=panda, slice_n_e=8, record_rollouts=0, record_points=16)
+    assert _store_ids(rerun, paths[0]) == {a}, "writing the same run's recording again keeps its id"

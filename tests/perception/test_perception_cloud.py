@@ -1,4 +1,5 @@
-"""Point cloud files: PLY (ascii, binary both byte orders) and NPY round trips, and clear errors."""
+"""Point cloud files: PLY (ascii, binary both byte orders), PCD (ascii, binary) and NPY round trips, files
+written by other tools, and clear errors."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ from samp.perception import Scan, load_point_cloud, save_point_cloud, scan_from_
 POINTS = np.random.default_rng(0).uniform(-1, 1, size=(50, 3))
 
 
-@pytest.mark.parametrize("name, ascii", [("c.ply", False), ("c.ply", True), ("c.npy", False)])
+@pytest.mark.parametrize("name, ascii", [("c.ply", False), ("c.ply", True), ("c.pcd", False), ("c.pcd", True),
+                                         ("c.npy", False)])
 def test_round_trip(tmp_path, name, ascii):
     path = save_point_cloud(tmp_path / name, POINTS, ascii=ascii)
     got = load_point_cloud(path)
@@ -77,9 +79,9 @@ def test_bad_npy_and_other_files_say_what_is_wrong(tmp_path):
     (tmp_path / "junk.npy").write_bytes(b"garbage")
     with pytest.raises(ValueError, match="not a readable NPY array"):
         load_point_cloud(tmp_path / "junk.npy")
-    (tmp_path / "c.pcd").write_text("x")
-    with pytest.raises(ValueError, match="unknown point cloud format '.pcd'; expected .ply or .npy"):
-        load_point_cloud(tmp_path / "c.pcd")
+    (tmp_path / "c.xyz").write_text("x")
+    with pytest.raises(ValueError, match="unknown point cloud format '.xyz'; expected .ply, .pcd or .npy"):
+        load_point_cloud(tmp_path / "c.xyz")
     with pytest.raises(FileNotFoundError, match="does not exist"):
         load_point_cloud(tmp_path / "missing.ply")
     with pytest.raises(ValueError, match="must be an \\(N, 3\\) array"):
@@ -88,3 +90,32 @@ def test_bad_npy_and_other_files_say_what_is_wrong(tmp_path):
         Scan(np.full((2, 3), np.nan))
     with pytest.raises(ValueError, match="free_ends need the sensor origin"):
         Scan(np.zeros((2, 3)), free_ends=np.ones((2, 3)))
+
+
+def test_pcd_as_the_point_cloud_library_writes_it(tmp_path):
+    """A binary PCD with an extra field before x (as PCL writes an XYZI or XYZRGB cloud: fields side by
+    side per point), and an ascii one with a multi-count field: x, y, z come out, the rest is skipped."""
+    table = np.zeros(len(POINTS), dtype=[("intensity", "<f4"), ("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("ring", "<u2")])
+    table["x"], table["y"], table["z"], table["intensity"], table["ring"] = *POINTS.T, 7.0, 3
+    header = ("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS intensity x y z ring\nSIZE 4 4 4 4 2\n"
+              f"TYPE F F F F U\nCOUNT 1 1 1 1 1\nWIDTH {len(POINTS)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+              f"POINTS {len(POINTS)}\nDATA binary\n")
+    (tmp_path / "b.pcd").write_bytes(header.encode() + table.tobytes())
+    np.testing.assert_allclose(load_point_cloud(tmp_path / "b.pcd"), POINTS.astype("<f4"), atol=0, rtol=0)
+    rows = "\n".join(f"{x} {y} {z} 1 2 3" for x, y, z in POINTS[:3])
+    text = ("VERSION .7\nFIELDS x y z normal\nSIZE 8 8 8 4\nTYPE F F F F\nCOUNT 1 1 1 3\nWIDTH 3\nHEIGHT 1\n"
+            f"POINTS 3\nDATA ascii\n{rows}\n")
+    (tmp_path / "a.pcd").write_text(text)
+    np.testing.assert_allclose(load_point_cloud(tmp_path / "a.pcd"), POINTS[:3], atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"VERSION 0.7\nFIELDS x y\nSIZE 4 4\nTYPE F F\nCOUNT 1 1\nPOINTS 1\nDATA ascii\n1 2\n", "x, y and z are needed"),
+    (b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 10\nDATA binary\n" + bytes(12), "cut short"),
+    (b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA binary_compressed\n", "convert it"),
+    (b"VERSION 0.7\nFIELDS x y z\n", "lacks"),
+])
+def test_bad_pcd_files_say_what_is_wrong(tmp_path, content, message):
+    (tmp_path / "bad.pcd").write_bytes(content)
+    with pytest.raises(ValueError, match=message):
+        load_point_cloud(tmp_path / "bad.pcd")

@@ -129,6 +129,19 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.runs show runs/quickstart/<timestamp>", Run("python -m samp.runs show {run}", prints=["protocol"])),
     ("python examples/plan.py runs/quickstart/<timestamp> [SEED]",
      Run("python {repo}/examples/plan.py {run} 3", prints=[" steps: "])),
+    # The other examples (each also run with checks of its own by tests/examples/)
+    ("python examples/scene_and_grid.py --generator shelf --seed 3 --n-e 12 --out out",
+     Run("python {repo}/examples/scene_and_grid.py --generator shelf --seed 3 --n-e 12 --out {tmp}/out",
+         ["out/scene.json", "out/grid.npy"])),
+    ("python examples/evaluate_run.py straight --benchmark smoke",
+     Run("python {repo}/examples/evaluate_run.py straight --benchmark smoke", prints=["success"])),
+    ("python examples/evaluate_run.py runs/quickstart/<timestamp> --benchmark smoke --problems 4",
+     Run("python {repo}/examples/evaluate_run.py {run} --benchmark smoke --problems 4", prints=["success"])),
+    ("python examples/cloud_to_grid.py --n-e 16 --out /tmp/cloud",
+     Run("python {repo}/examples/cloud_to_grid.py --n-e 16 --out {tmp}/cloud", ["cloud/cloud.pcd", "cloud/grid.npy"])),
+    ("python examples/cloud_to_grid.py --cloud /tmp/cloud/cloud.pcd --origin 1.9 0 1.3 --n-e 16",
+     Run("python {repo}/examples/cloud_to_grid.py --cloud {tmp}/cloud/cloud.pcd --origin 1.9 0 1.3 --n-e 16 "
+         "--out {tmp}/cloud2", ["cloud2/grid.npy"])),
     # Robot SDFs: the hash grid, then the NN-SDF baseline under the same name
     ("python -m samp.train experiment=robot_sdf_panda",
      Run(f"python -m samp.train experiment=robot_sdf_panda {SDF_RUN}", ["runs/robot_sdf_panda/*/robot_sdf.pt"])),
@@ -381,7 +394,8 @@ def test_every_readme_command_works_where_it_says(tmp_path, monkeypatch):
     changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
     assert not changed, f"README commands wrote into the repository: {changed[:20]}"
     written = sorted(p.name for p in tmp_path.iterdir())
-    assert set(written) <= {"work", "runs", "datasets", "cache", "bench", "recon", "recon1", "recon2", "path"}, written
+    assert set(written) <= {"work", "runs", "datasets", "cache", "bench", "recon", "recon1", "recon2", "path", "out",
+                            "cloud", "cloud2"}, written
     assert not any((tmp_path / "work").iterdir()), f"written into the working folder: {list((tmp_path / 'work').iterdir())}"
     # The NN-SDF run made under the name robot_sdf_panda after the hash grid's is not what the name means.
     from samp.train.prerequisites import resolve_robot_sdf

@@ -24,9 +24,10 @@ import torch
 
 __all__ = ["SelfDistances"]
 
-# Pairs whose box bound stays this far [m] above the rigid minimum at every tabulated angle are left out of
-# the tables: between two samples the bound moves by less than a link's reach times the angle step.
+# A one-joint pair is left out of the tables when its box bound stays above the rigid minimum by this margin [m]
+# plus how far a point can move between two tabulated angles (_REACH times the step, radians) at every angle.
 _TABLE_MARGIN = 0.02
+_REACH = 0.5  # m: no robot point is farther than this from the joint that moves it relative to the next link
 
 
 def _arm_joints_between(robot, a: str, b: str) -> list[int]:
@@ -61,10 +62,9 @@ class SelfDistances:
         device = own.device
         joints = [[_arm_joints_between(robot, robot.link_names[i], robot.link_names[k]) for k in range(L)]
                   for i in range(L)]
-        points = torch.arange(M, device=device)
         # Rigid pairs: their minimum, once, at the home configuration (any q gives the same values).
         home = robot.home.to(robot.dtype)[None]
-        u_home = sdf.link_coords(robot.transform_points(home)[:, :, :], home)[0]  # (M, L, 3)
+        u_home = sdf.link_coords(robot.transform_points(home), home)[0]  # (M, L, 3)
         rigid = torch.tensor([[len(joints[i][k]) == 0 for k in range(L)] for i in range(L)], device=device)[own]  # (M, L)
         m, l = torch.nonzero(rigid, as_tuple=True)
         base = torch.full((M,), float("inf"), dtype=robot.dtype, device=device)
@@ -90,7 +90,8 @@ class SelfDistances:
         q = lo + (hi - lo) * torch.linspace(0, 1, K, dtype=robot.dtype, device=m.device)[:, None]  # (K, n)
         u = torch.cat([sdf.link_coords(robot.transform_points(c), c)[:, m, l] for c in q.split(64)])  # (K, P, 3)
         bound = (u - u.clamp(-1, 1)).norm(dim=-1) * sdf.scales[l]  # (K, P)
-        keep = (bound < self.base[m] + _TABLE_MARGIN).any(dim=0)
+        step = float(((hi - lo) / (K - 1)).max())
+        keep = (bound < self.base[m] + _TABLE_MARGIN + _REACH * step).any(dim=0)
         m, l, joint, u = m[keep], l[keep], joint[keep], u[:, keep].transpose(0, 1)  # u: (P, K, 3)
         values = sdf._pair_values(u.reshape(-1, 3), l.repeat_interleave(K)).view(-1, K)
         self.table, self.table_point, self.table_joint = values, m, joint

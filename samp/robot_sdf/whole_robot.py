@@ -20,6 +20,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from samp.robot_sdf.robot_points import SelfDistances
+
 __all__ = ["RobotSDF"]
 
 CHUNK = 1 << 15  # point-link pairs per network call: bounds the temporaries (larger was no faster on CPU)
@@ -152,8 +154,6 @@ class RobotSDF(nn.Module):
     def self_distances(self, tables: int = 0):
         """The `SelfDistances` of these weights (built on first use, rebuilt when the weights, device or
         dtype change)."""
-        from samp.robot_sdf.robot_points import SelfDistances
-
         key = (tables, self.centres.device, self.centres.dtype,
                *((t.data_ptr(), t._version) for t in [*self.net.parameters(), *self.net.buffers()]))
         cache = self.__dict__.setdefault("_self_distances", {})

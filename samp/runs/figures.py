@@ -21,6 +21,7 @@ import numpy as np
 
 from samp.eval.metrics import wilson_interval
 from samp.names import EVAL_DIR, PLOTS_DIR, PROBLEMS_JSONL, TRAIN_PREFIX, VAL_PREFIX
+from samp.runs.plots import save_figure
 from samp.runs.registry import Run
 
 __all__ = ["LEARNING_PNG", "OUTCOMES_PNG", "SDF_SLICE_PNG", "plot_learning", "plot_outcomes", "plot_run",
@@ -37,14 +38,6 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _save(plt, fig, out: Path) -> Path:
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
 
 
 def plot_learning(run: Run, out: Path) -> Path:
@@ -82,7 +75,7 @@ def plot_learning(run: Run, out: Path) -> Path:
     for ax in axes[n:]:
         ax.axis("off")
     fig.suptitle(f"{run.get('experiment')}  {run.path.name}: learning curves", fontsize=9)
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out, dpi=110)
 
 
 def _records(run: Run) -> list[dict]:
@@ -150,7 +143,7 @@ def plot_outcomes(run: Run, out: Path) -> Path:
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=7, ncol=len(planners), loc="upper center")
     fig.suptitle(f"{run.get('experiment')}  {run.path.name}: outcomes per problem", fontsize=9)
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out, dpi=110)
 
 
 def _scene_of(run: Run, record: dict):
@@ -212,7 +205,7 @@ def plot_sdf_slice(run: Run, out: Path, problem: int = 0) -> Path:
            "(paths projected)")
     ax.title.set_fontsize(8)
     ax.legend(fontsize=7, loc="lower right")
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out, dpi=110)
 
 
 def plot_run(run: Run, folder: Path | None = None) -> list[Path]:

@@ -77,7 +77,7 @@ def plot_curves(runs: list[Run], by: str, metrics: list[str], out: Path, x: str 
         ax.set_title(metric)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out)
 
 
 def _errors(value: float, low: float, high: float) -> tuple[float, float]:
@@ -112,7 +112,7 @@ def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
         ax.set_ylabel("mean of runs [%]; bars: pooled Wilson 95 %" if wilson else "mean of runs; bars: min to max")
         ax.set_title(metric)
         ax.grid(axis="y", alpha=0.3)
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out)
 
 
 # A panel per rate flattened into run.json after training (samp.eval.metrics.METRICS): success, reach, collision.
@@ -172,12 +172,13 @@ def plot_run_summary(run: Run, out: Path) -> Path:
         ax.legend(fontsize=7, ncol=len(planners), loc="upper center")
     protocol = "" if run.protocol is None else f"  (protocol {label(run.protocol, short=True)})"
     fig.suptitle(f"{run.get('experiment')}  {run.path.name}{protocol}", fontsize=9)
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out)
 
 
-def _save(plt, fig, out: Path) -> Path:
+def save_figure(plt, fig, out: Path, dpi: int = 120) -> Path:
+    """Lay `fig` out, write it to `out` (its folder made if needed) and close it."""
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
+    fig.savefig(out, dpi=dpi)
     plt.close(fig)
     return out

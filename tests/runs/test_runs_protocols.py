@@ -254,18 +254,18 @@ def _captured(monkeypatch) -> list:
     """The figures `samp.runs.plots` saves, as (path, [(y label, error bar segments) per axes])."""
     import samp.runs.plots as plots
 
-    saved, save = [], plots._save
+    saved, save = [], plots.save_figure
 
-    def spy(plt, fig, out):
+    def spy(plt, fig, out, dpi=120):
         panels = []
         for ax in fig.axes:
             segments = [seg for container in ax.containers if getattr(container, "errorbar", None)
                         for seg in container.errorbar.lines[2][0].get_segments()]
             panels.append((ax.get_ylabel(), segments))
         saved.append((out, panels))
-        return save(plt, fig, out)
+        return save(plt, fig, out, dpi)
 
-    monkeypatch.setattr(plots, "_save", spy)
+    monkeypatch.setattr(plots, "save_figure", spy)
     return saved
 
 

@@ -213,7 +213,7 @@ def _scene_record(ds: Dataset, i: int) -> tuple[SceneRecord, dict]:
 def write_dataset(ds: Dataset, name: str | None = None, root: Path | None = None) -> Path:
     """Write `ds` as a dataset of its own (its id as parent). Equal content gives byte-identical files,
     hence the same id: written, read back and written again, a dataset is unchanged."""
-    from samp.data.generation import build_manifest
+    from samp.data.merging import build_manifest
     from samp.provenance import code_version, package_versions
 
     from samp.paths import check_name

@@ -27,7 +27,6 @@ import signal
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from contextlib import contextmanager
 from multiprocessing import get_context
 from multiprocessing.managers import SyncManager
 from pathlib import Path
@@ -36,14 +35,13 @@ import numpy as np
 import torch
 
 from samp.data.mcap_io import SceneRecord, write_scene_file
+from samp.data.merging import EVAL_PREFIX, build_manifest, link_or_copy, merge_lock
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
-from samp.names import SPLIT_ALIASES, SPLITS
 
 __all__ = ["GenerationError", "GenerationInterrupted", "generate", "merge", "work_dir"]
 
 TIMING_KEYS = ("planning_time", "solve_time", "simplify_time")  # wall clock: manifest only
-EVAL_PREFIX = "eval_"  # the evaluation problems' times in a sidecar: eval_planning_time, ...
 SIDECAR = ".json"
 # derive_seed(scene seed, KEY[, problem]): the seed streams of a scene's problems and plans. Demonstrations
 # and evaluation problems draw from different streams, so no evaluation problem repeats a demonstration.
@@ -334,34 +332,10 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
     jobs = spec.scene_jobs()
     if not work.is_dir():  # merged already (by a shard finishing at the same time), or never generated
         return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)  # the latter names what is missing
-    with _merge_lock(work, spec.name):
+    with merge_lock(work, spec.name):
         if not work.is_dir():  # the process we waited for merged it
             return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)
         return _merge_locked(spec, root, work, jobs)
-
-
-@contextmanager
-def _merge_lock(work: Path, name: str):
-    """An exclusive lock on `work/merge.lock` (fcntl.flock), held for the block. The kernel releases it when
-    its holder dies, however it dies, so a lock file left by a killed merge is simply taken over; a live
-    holder is waited for."""
-    import fcntl
-    import platform
-
-    lock = work / "merge.lock"
-    fd = os.open(lock, os.O_CREAT | os.O_RDWR)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            owner = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
-            print(f"{name}: {owner} is merging {work}; waiting for it to finish", flush=True)
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"process {os.getpid()} on {platform.node()}\n".encode(), 0)
-        yield
-    finally:
-        os.close(fd)  # releases the lock
 
 
 def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
@@ -385,7 +359,7 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
     tmp.mkdir(parents=True)
     try:
         for j in jobs:
-            _link_or_copy(work / j.file, tmp / j.file)
+            link_or_copy(work / j.file, tmp / j.file)
         manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, _asset_hash(spec.robot), sidecars,
                                   parents=[])
         manifest.update(code_version=code_version(), versions=package_versions())
@@ -404,37 +378,3 @@ def _asset_hash(robot: str) -> str:
     from samp.robot import load_robot
 
     return _ROBOTS[robot].asset_hash if robot in _ROBOTS else load_robot(robot).asset_hash
-
-
-def _link_or_copy(src: Path, dst: Path) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
-
-
-def build_manifest(config: dict, config_hash: str, seed: int, asset_hash: str, sidecars: list[dict],
-                   parents: list[str]) -> dict:
-    """Everything a manifest records besides the file list, id, name, format version and time.
-
-    `scenes` lists every scene's sidecar: index, name, file, split, generator and seed, content hash,
-    counts of demonstrations (episodes, trajectories) and evaluation problems (eval_problems, eval_solved),
-    and the wall-clock planner times of both."""
-    scenes = sorted(sidecars, key=lambda s: s["scene_index"])
-    # A rewritten legacy dataset's sidecars may say "heldout": it counts as "val".
-    split = {s: [x["name"] for x in scenes if SPLIT_ALIASES.get(x["split"], x["split"]) == s] for s in SPLITS}
-    counts = {"scenes": len(scenes), **{f"{s}_scenes": len(split[s]) for s in SPLITS},
-              "episodes": sum(s["episodes"] for s in scenes), "trajectories": sum(s["trajectories"] for s in scenes),
-              "eval_problems": sum(s.get("eval_problems", 0) for s in scenes),
-              "eval_solved": sum(s.get("eval_solved", 0) for s in scenes)}
-    counts["failures"] = counts["episodes"] - counts["trajectories"]
-    counts["eval_failures"] = counts["eval_problems"] - counts["eval_solved"]
-    return {"config": config, "config_hash": config_hash, "seed": seed,
-            "robot": {"name": config["robot"], "asset_hash": asset_hash}, "parents": parents, "counts": counts,
-            "splits": split, "scenes": scenes, "planning_time": _time_summary(scenes, "planning_time"),
-            "eval_planning_time": _time_summary(scenes, EVAL_PREFIX + "planning_time")}
-
-
-def _time_summary(scenes: list[dict], key: str) -> dict:
-    times = [t for s in scenes for t in s.get(key, [])]
-    return {"total_s": float(np.sum(times)) if times else 0.0, "mean_s": float(np.mean(times)) if times else 0.0}

@@ -16,6 +16,7 @@ switches remove the point encoder or the environment branch for the paper's abla
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import torch
@@ -40,6 +41,8 @@ class PolicyConfig:
     point_encoder: bool = True  # ablation: False drops the PointNet branch
     env_encoder: bool = True  # ablation: False drops the environment branch (no grid at all)
     goal_features: bool = True  # MLP_I also sees u_g - u_t, its direction and its length (False: the paper's [u_t, u_g])
+    norm: str = "batch"  # Phi_3D's normalisation: batch (the paper's), group (per scene) or none; see `EnvEncoder`
+    registration: str = "centres"  # where feature cells sit: centres (their true centres) or bounds (before 2026-11)
 
 
 def goal_features(u_t: torch.Tensor, u_g: torch.Tensor, extra: bool) -> torch.Tensor:
@@ -95,18 +98,54 @@ def _mlp(sizes: list[int], last_activation: bool = True) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class EnvEncoder(nn.Module):
-    """Phi_3D: Conv3d(1 -> C, k 3, stride 2) + BatchNorm + ELU + MaxPool(2, stride 1). The feature
-    volume covers the same workspace bounds as the grid, so it is sampled with the grid's coordinates."""
+NORMS = ("batch", "group", "none")
+REGISTRATIONS = ("centres", "bounds")
 
-    def __init__(self, channels: int):
+
+class EnvEncoder(nn.Module):
+    """Phi_3D: Conv3d(1 -> C, k 3, stride 2, padding 1) + normalisation + ELU + MaxPool(2, stride 1).
+
+    Where a feature sits: conv output j is centred on input cell 2j, and pooled feature k covers conv
+    outputs k and k + 1, so it is centred on input cell 2k + 1. `feature_bounds` gives the box that the
+    feature cells' centres span, so that a feature is read where it was computed ("centres"). Checkpoints
+    trained before this read the volume as if it spanned the grid's own bounds ("bounds"), up to two input
+    cells away from where each feature was computed; they keep that convention when loaded.
+
+    Normalisation: "batch" is the paper's BatchNorm, whose training statistics come from the one or two
+    scenes of a batch; "group" normalises each scene's volume on its own (GroupNorm, one group per channel),
+    the same in training and evaluation; "none" keeps the conv's output as it is.
+    """
+
+    def __init__(self, channels: int, norm: str = "batch", registration: str = "centres"):
         super().__init__()
-        self.net = nn.Sequential(nn.Conv3d(1, channels, 3, stride=2, padding=1), nn.BatchNorm3d(channels), nn.ELU(),
+        if norm not in NORMS:
+            raise ValueError(f"model.norm must be one of {NORMS}, got {norm!r}")
+        if registration not in REGISTRATIONS:
+            raise ValueError(f"model.registration must be one of {REGISTRATIONS}, got {registration!r}")
+        layer = {"batch": lambda: nn.BatchNorm3d(channels), "group": lambda: nn.GroupNorm(channels, channels),
+                 "none": nn.Identity}[norm]()
+        self.net = nn.Sequential(nn.Conv3d(1, channels, 3, stride=2, padding=1), layer, nn.ELU(),
                                  nn.MaxPool3d(2, stride=1))
+        self.registration = registration
 
     def forward(self, grids: torch.Tensor) -> torch.Tensor:
         """(S, n, n, n) grids indexed (x, y, z) -> (S, C, n', n', n') feature volumes, same index order."""
         return self.net(grids[:, None])
+
+    def feature_bounds(self, bounds, n_e: int, n_features: int):
+        """The box that the feature cells' centres span, for grids of n_e anchors over `bounds`
+        ((lo_x, lo_y, lo_z), (hi_x, hi_y, hi_z)), as the same kind of pair; `bounds` itself under the
+        "bounds" registration."""
+        if self.registration == "bounds":
+            return bounds
+        return _centres_box(tuple(map(tuple, bounds)), n_e, n_features)
+
+
+@functools.lru_cache(maxsize=64)
+def _centres_box(bounds: tuple, n_e: int, n_features: int) -> tuple[list[float], list[float]]:
+    """Feature k sits on input anchor 2k + 1 (see `EnvEncoder`): the first on anchor 1, the last on 2n' - 1."""
+    (lo, hi), cell = bounds, [(b - a) / (n_e - 1) for a, b in zip(*bounds)]
+    return [a + c for a, c in zip(lo, cell)], [a + (2 * n_features - 1) * c for a, c in zip(lo, cell)]
 
 
 class SAMPNet(nn.Module):
@@ -118,7 +157,7 @@ class SAMPNet(nn.Module):
         M, C = cfg.num_points, cfg.channels
         width = 0
         if cfg.env_encoder:
-            self.env = EnvEncoder(C)
+            self.env = EnvEncoder(C, cfg.norm, cfg.registration)
             self.env_mlp = _mlp([M * (C + 1), *cfg.env_hidden])
             width += cfg.env_hidden[-1]
         if cfg.point_encoder:
@@ -133,7 +172,8 @@ class SAMPNet(nn.Module):
         return self.env(grids) if self.cfg.env_encoder else None
 
     def forward(self, u_t: torch.Tensor, u_g: torch.Tensor, points: torch.Tensor, robot_sdf: torch.Tensor,
-                features: torch.Tensor | None, scene_index: torch.Tensor | None, bounds) -> torch.Tensor:
+                features: torch.Tensor | None, scene_index: torch.Tensor | None, bounds, n_e: int | None = None
+                ) -> torch.Tensor:
         """One step.
 
         Args:
@@ -141,7 +181,8 @@ class SAMPNet(nn.Module):
             points: (B, M, 3) robot points at u_t in the base frame (metres).
             robot_sdf: (B, M) robot SDF at those points (metres).
             features: (S, C, n', n', n') from `encode_scenes`; scene_index: (B,) into it.
-            bounds: the workspace bounds the grids span.
+            bounds: the workspace bounds the grids span; n_e: the grids' anchors per axis (needed to place the
+                feature cells, see `EnvEncoder`).
         Returns:
             (B, n) the next configuration, normalised and clamped to [-1, 1].
         """
@@ -151,7 +192,10 @@ class SAMPNet(nn.Module):
                              f"points {tuple(points.shape)} and q {tuple(u_t.shape)}")
         parts = [self.config_mlp(goal_features(u_t, u_g, self.cfg.goal_features))]
         if self.cfg.env_encoder:
-            env = sample_by_scene(features, scene_index, points, bounds).transpose(1, 2)  # (B, M, C)
+            if n_e is None and self.env.registration == "centres":
+                raise ValueError("SAMPNet.forward needs n_e (the grids' anchors per axis) to place the feature cells")
+            box = self.env.feature_bounds(bounds, n_e, features.shape[-1])
+            env = sample_by_scene(features, scene_index, points, box).transpose(1, 2)  # (B, M, C)
             parts.append(self.env_mlp(torch.cat([env, robot_sdf[..., None]], dim=-1).reshape(B, -1)))
         if self.cfg.point_encoder:
             parts.append(self.point_mlp(torch.cat([points, robot_sdf[..., None]], dim=-1)).amax(dim=1))

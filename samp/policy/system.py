@@ -15,6 +15,7 @@ weights and description.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict
 from pathlib import Path
 
@@ -29,6 +30,8 @@ __all__ = ["NonFiniteLossError", "PolicySystem", "ROBOT_SDF_TABLES", "read_robot
 
 # Joint angles per one-joint table of the robot SDF at the robot points (0: exact); see `PolicySystem`.
 ROBOT_SDF_TABLES = 256
+
+log = logging.getLogger(__name__)
 
 
 def read_robot_sdf(ref: str | Path) -> dict:
@@ -117,7 +120,8 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         points, d_robot = self.robot_features(q)
         if not self.hparams.robot_sdf_feature:
             d_robot = torch.zeros_like(d_robot)
-        u = self.net(normalize(q, self.limits), normalize(q_goal, self.limits), points, d_robot, features, scene, bounds)
+        u = self.net(normalize(q, self.limits), normalize(q_goal, self.limits), points, d_robot, features, scene, bounds,
+                     n_e=self.n_e)
         return denormalize(u, self.limits)
 
     def planner(self, robot_sdf_tables: int | None = None, **options):
@@ -156,4 +160,8 @@ class PolicySystem(PolicySystemBase, kind="samp"):
     def _build(cls, hparams: dict, record: dict) -> "PolicySystem":
         if not record.get("robot_sdf"):
             raise ValueError("the samp checkpoint carries no robot SDF (its record has no robot_sdf payload)")
+        if "registration" not in (record.get("net") or {}):  # trained before feature cells were placed at their centres
+            hparams["model"] = {**(hparams.get("model") or {}), "registration": "bounds"}
+            log.info("this policy checkpoint predates feature registration at cell centres: its feature volume is "
+                     "read over the grid's bounds, as it was trained (model.registration=bounds)")
         return cls(**hparams, robot_sdf_payload=record["robot_sdf"])

@@ -41,7 +41,7 @@ def test_forward_shapes_clamp_and_parameter_count():
     feats = net.encode_scenes(grids)
     assert feats.shape == (2, 4, 5, 5, 5)  # conv stride 2: 6, then max-pool 2 with stride 1: 5
     u = torch.full((3, 7), 0.999)
-    out = net(u, u, _points(3, 64), torch.rand(3, 64), feats, torch.tensor([0, 1, 1]), BOUNDS)
+    out = net(u, u, _points(3, 64), torch.rand(3, 64), feats, torch.tensor([0, 1, 1]), BOUNDS, n_e=12)
     assert out.shape == (3, 7) and out.abs().max() <= 1.0
     full = SAMPNet(PolicyConfig())
     assert 3.0e6 < sum(p.numel() for p in full.parameters()) < 3.5e6  # the paper: about 3.1 M
@@ -52,7 +52,7 @@ def test_every_branch_gets_gradient(env, points):
     net = SAMPNet(PolicyConfig(dof=6, num_points=32, env_encoder=env, point_encoder=points))
     grids = torch.randn(2, 10, 10, 10)
     u = torch.rand(4, 6) * 0.5
-    out = net(u, -u, _points(4, 32), torch.rand(4, 32), net.encode_scenes(grids), torch.tensor([0, 1, 0, 1]), BOUNDS)
+    out = net(u, -u, _points(4, 32), torch.rand(4, 32), net.encode_scenes(grids), torch.tensor([0, 1, 0, 1]), BOUNDS, n_e=10)
     out.square().sum().backward()
     for name, p in net.named_parameters():
         assert p.grad is not None and p.grad.abs().sum() > 0, f"no gradient reaches {name}"

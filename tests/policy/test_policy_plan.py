@@ -82,7 +82,7 @@ def test_step_is_the_network_fed_by_the_generic_robot_sdf_query(run_dir):
         d = system.robot_sdf.query(points, q)
         features = system.net.encode_scenes(env.grids)
         u = system.net(normalize(q, system.limits), normalize(q_goal, system.limits), points, d, features,
-                       torch.zeros(5, dtype=torch.long), system.bounds)
+                       torch.zeros(5, dtype=torch.long), system.bounds, n_e=system.n_e)
     assert torch.allclose(got, denormalize(u, system.limits), atol=1e-5)
 
 

@@ -56,14 +56,15 @@ def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
         points = robot.transform_points(q, poses)
         d = rsdf.at_robot_points(q, points, poses, tables)
         u_t, u_g = normalize(q, system.limits), normalize(q_goal, system.limits)
-        env = sample_by_scene(features, scene, points, bounds).transpose(1, 2)
+        box = net.env.feature_bounds(bounds, system.n_e, features.shape[-1])
+        env = sample_by_scene(features, scene, points, box).transpose(1, 2)
         n = len(q)
         width = net.fusion[0].in_features
         parts = {
             "fk (link poses)": _median_ms(lambda: robot.link_poses(q)),
             "robot points": _median_ms(lambda: robot.transform_points(q, poses)),
             "robot SDF": _median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables)),
-            "feature sampling": _median_ms(lambda: sample_by_scene(features, scene, points, bounds)),
+            "feature sampling": _median_ms(lambda: sample_by_scene(features, scene, points, box)),
             "PointNet": _median_ms(lambda: net.point_mlp(torch.cat([points, d[..., None]], dim=-1)).amax(dim=1)),
             "MLPs": _median_ms(lambda: (net.env_mlp(torch.cat([env, d[..., None]], dim=-1).reshape(n, -1)),
                                         net.config_mlp(goal_features(u_t, u_g, net.cfg.goal_features)),
@@ -96,7 +97,8 @@ def _generic_step_ms(system, q, q_goal, features, scene, bounds) -> float:
         fk = robot.fk(q)  # the query's own FK of every link
         torch.stack([fk[name] for name in rsdf.link_names], dim=1)
         d = rsdf.query(points, q)
-        u = system.net(normalize(q, system.limits), normalize(q_goal, system.limits), points, d, features, scene, bounds)
+        u = system.net(normalize(q, system.limits), normalize(q_goal, system.limits), points, d, features, scene, bounds,
+                       n_e=system.n_e)
         return denormalize(u, system.limits)
 
     with torch.inference_mode():

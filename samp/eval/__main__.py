@@ -92,6 +92,8 @@ def _planner(cfg, run, manifest: dict):
         options = {} if cfg.robot_sdf_tables is None else {"robot_sdf_tables": cfg.robot_sdf_tables}
         if cfg.trust_checkpoint:
             options["trust_checkpoint"] = True
+        if cfg.check is not None:
+            options["check"] = cfg.check
         policy = load_planner(run.path, device=cfg.device, **options)
         check_policy_robot(policy, manifest)
         own = getattr(policy, "n_e", None)

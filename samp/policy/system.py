@@ -124,18 +124,26 @@ class PolicySystem(PolicySystemBase, kind="samp"):
                      n_e=self.n_e)
         return denormalize(u, self.limits)
 
-    def planner(self, robot_sdf_tables: int | None = None, **options):
+    def planner(self, robot_sdf_tables: int | None = None, check: int | dict | None = None, **options):
         """The current weights as a `StepPolicy` (`SAMPStepPolicy`), for rollouts and `EvalCallback`.
-        `robot_sdf_tables` replaces the system's own (0: the exact robot SDF at the robot points)."""
+        `robot_sdf_tables` replaces the system's own (0: the exact robot SDF at the robot points).
+        `check`: a number of candidates, or `CheckConfig` fields, gives the checked planner instead
+        (`samp.policy.checked.CheckedPolicy`, "samp+check", a `TrajectoryPlanner`)."""
         from samp.policy.step import SAMPStepPolicy
 
         if options:
-            raise ValueError(f"the samp policy takes only robot_sdf_tables as a planner option, got {sorted(options)}")
+            raise ValueError(f"the samp policy takes only robot_sdf_tables and check as planner options, got "
+                             f"{sorted(options)}")
         if robot_sdf_tables is not None:
             if not isinstance(robot_sdf_tables, int) or robot_sdf_tables < 0 or robot_sdf_tables == 1:
                 raise ValueError(f"robot_sdf_tables must be 0 (exact) or an integer >= 2, got {robot_sdf_tables!r}")
             self.robot_sdf_tables = robot_sdf_tables
-        return SAMPStepPolicy(self)
+        if check is None:
+            return SAMPStepPolicy(self)
+        from samp.policy.checked import CheckConfig, CheckedPolicy
+
+        return CheckedPolicy(SAMPStepPolicy(self), CheckConfig(**check) if isinstance(check, dict) else
+                             CheckConfig(candidates=check))
 
     # ------------------------------------------------------------------ training
     def _losses(self, batch: dict) -> dict[str, torch.Tensor]:

@@ -173,3 +173,53 @@ def test_cuda_step_and_rollout_match_the_cpu(run_dir):
     a = cpu.plan(scene, problem.q_start, problem.q_goal, max_steps=10)
     b = gpu.plan(scene, problem.q_start, problem.q_goal, max_steps=10)
     assert b.steps == a.steps and np.allclose(a.trajectory, b.trajectory, atol=1e-3)
+
+
+def test_checked_planner_with_one_candidate_is_the_plain_plan(run_dir):
+    """samp+check with one candidate steps the same policy from the same start: its trajectory is `plan`'s."""
+    from samp.eval import Problem
+
+    plain, checked = load_policy(run_dir), load_policy(run_dir, check=1)
+    scene, problem = _problem(plain)
+    want = plain.plan(scene, problem.q_start, problem.q_goal, max_steps=40)
+    checked.cfg.max_steps = 40
+    got = checked.plan(Problem(scene, problem.q_start, problem.q_goal, name="p"))
+    np.testing.assert_allclose(got.trajectory, want.trajectory, atol=1e-6)
+    assert (got.reason == "") == want.reached
+
+
+def test_checked_planner_clearance_matches_an_independent_trilinear_oracle(run_dir):
+    """The check's clearance of a segment is the smallest anchor-grid SDF at the robot points over its
+    sub-steps, recomputed here with scipy's trilinear interpolation of the grid (not samp's grid_sample); a
+    sub-step left out or a swapped grid axis would change it. Candidates are deterministic per problem name,
+    and the first heads straight for the goal."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    checked = load_policy(run_dir, check={"candidates": 6, "substeps": 3})
+    scene, _ = _problem(checked.policy)
+    grid = scene.anchor_grid(checked.n_e)
+    bounds = checked.policy.system.bounds
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    interp = RegularGridInterpolator([np.linspace(lo[a], hi[a], grid.shape[a]) for a in range(3)],
+                                     grid.double().numpy())
+    limits = checked.robot.joint_limits.double()
+    g = torch.Generator().manual_seed(5)
+    q0, q1 = (limits[:, 0] + (limits[:, 1] - limits[:, 0]) * torch.rand(2, 5, 7, generator=g, dtype=torch.float64))
+    got = checked._clearance(grid.to(checked.robot.dtype), bounds, q0.to(checked.robot.dtype),
+                             q1.to(checked.robot.dtype)).double().numpy()
+    t = np.arange(1, 4)[None, :, None] / 3
+    qs = (q0.numpy()[:, None] + t * (q1 - q0).numpy()[:, None]).reshape(-1, 7)
+    pts = checked.robot.transform_points(torch.as_tensor(qs, dtype=checked.robot.dtype)).double().numpy()
+    want = interp(np.clip(pts.reshape(-1, 3), lo, hi)).reshape(5, -1).min(axis=1)
+    np.testing.assert_allclose(got, want, atol=1e-4)
+    start, goal = torch.zeros(7, dtype=torch.float64), torch.full((7,), 0.3, dtype=torch.float64)
+    vias = checked._vias(start, goal, "x")
+    assert torch.equal(vias, checked._vias(start, goal, "x")) and not torch.equal(vias, checked._vias(start, goal, "y"))
+    assert torch.equal(vias[0], goal) and (vias[1:] - vias[0]).abs().max() > 0.1
+
+
+def test_checked_planner_refuses_bad_settings(run_dir):
+    with pytest.raises(ValueError, match="check.candidates"):
+        load_policy(run_dir, check=0)
+    with pytest.raises(ValueError, match="check.spread"):
+        load_policy(run_dir, check={"spread": -1.0})

@@ -1,0 +1,144 @@
+"""samp+check: several rollouts of a step policy in one batch, and the one the scene's anchor grid says is
+clear (issue 18, after Neural MP's sample-and-check; DESIGN section 4).
+
+Candidate 0 is the plain rollout. Candidate k >= 1 first heads for a via configuration drawn around the
+midpoint of start and goal (normal, `spread` radians per joint, seeded by the problem's name), and from
+there (within `via_reach` radians of it, or after a third of `max_steps`) for the goal. All candidates step
+together, one policy call per step. After each step the new segment of every candidate is checked against
+the anchor grid: the grid's SDF, trilinear at the robot points posed at `substeps` configurations along the
+segment, must stay above `margin` metres; a detour that fails this stops there (the plain rollout always
+runs on). The first candidate to reach the goal with a clear record is the answer; when none does, the
+plain rollout.
+
+The check reads the same anchor grid the policy reads (the scene's exact SDF at n_e anchors), so it costs
+grid samples, not collision queries. Its solution time is the whole call: encoding, steps and checks.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from samp.policy.interface import EnvBatch, PlannedTrajectory, clamp_to_limits
+from samp.robot.goal import ee_poses, goal_errors
+from samp.scene.grid import sample_grid
+
+__all__ = ["CheckConfig", "CheckedPolicy"]
+
+
+@dataclass
+class CheckConfig:
+    """How many candidates, how they spread, and what counts as clear (radians, metres)."""
+
+    candidates: int = 8  # rollouts per problem, the plain one included
+    spread: float = 0.6  # std of the via configurations around the start-goal midpoint, per joint
+    via_reach: float = 0.15  # a candidate turns to the goal within this of its via configuration ...
+    margin: float = 0.01  # clear: the grid's SDF at every robot point stays above this
+    substeps: int = 3  # configurations checked per step (the step's end included)
+    max_steps: int = 150
+    position_tolerance: float = 0.02
+    orientation_tolerance: float = 15.0
+    stall_threshold: float = 1e-3
+    stall_steps: int = 10
+    seed: int = 0
+
+    def __post_init__(self):
+        if not (isinstance(self.candidates, int) and self.candidates >= 1):
+            raise ValueError(f"check.candidates must be an integer >= 1, got {self.candidates!r}")
+        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+            raise ValueError(f"check.substeps must be an integer >= 1, got {self.substeps!r}")
+        if self.spread < 0 or self.via_reach <= 0:
+            raise ValueError(f"check.spread must be >= 0 and check.via_reach > 0 radians, got {self.spread}, "
+                             f"{self.via_reach}")
+
+
+class CheckedPolicy:
+    """A `TrajectoryPlanner` around a `SAMPStepPolicy` (`plan(problem) -> PlannedTrajectory`)."""
+
+    def __init__(self, policy, config: CheckConfig | None = None, name: str = "samp+check"):
+        self.policy, self.cfg, self.name = policy, config or CheckConfig(), name
+        self.robot, self.n_e = policy.robot, policy.n_e
+        self.chosen: dict[str, int] = {"plain": 0, "via": 0, "unclear": 0, "unreached": 0}
+
+    def _vias(self, start: torch.Tensor, goal: torch.Tensor, key: str) -> torch.Tensor:
+        """(K, n) the targets of the first leg: the goal for candidate 0, via configurations for the others."""
+        K = self.cfg.candidates
+        g = torch.Generator().manual_seed(zlib.crc32(f"{self.cfg.seed}/{key}".encode()))
+        noise = torch.randn(K, len(start), generator=g, dtype=torch.float64).to(start)
+        vias = clamp_to_limits(self.robot, (start + goal) / 2 + self.cfg.spread * noise)
+        vias[0] = goal
+        return vias
+
+    def _clearance(self, grid: torch.Tensor, bounds, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
+        """(R,) the smallest grid SDF at the robot points over `substeps` configurations from q0 to q1 (R, n)."""
+        s = self.cfg.substeps
+        t = torch.arange(1, s + 1, dtype=q0.dtype, device=q0.device) / s
+        qs = (q0[:, None] + t[None, :, None] * (q1 - q0)[:, None]).reshape(-1, q0.shape[1])  # (R s, n)
+        points = self.robot.transform_points(qs)  # (R s, M, 3)
+        d = sample_grid(grid, points.reshape(-1, 3), bounds).view(len(q0), -1)
+        return d.amin(dim=1)
+
+    def plan(self, problem) -> PlannedTrajectory:
+        """problem: a `samp.eval.Problem` (its scene, q_start, q_goal) -> the chosen trajectory."""
+        cfg, robot, policy = self.cfg, self.robot, self.policy
+        dev, dt = robot.device, robot.dtype
+        t0 = time.perf_counter()
+        env1 = policy._environment(problem.scene)
+        K = cfg.candidates
+        env = EnvBatch(env1.grids, env1.bounds, torch.zeros(K, dtype=torch.long, device=dev))
+        grid, bounds = env1.grids[0], policy.system.bounds
+        start = torch.as_tensor(np.asarray(problem.q_start), dtype=dt, device=dev)
+        goal = torch.as_tensor(np.asarray(problem.q_goal), dtype=dt, device=dev)
+        goal_pose = ee_poses(robot, np.asarray(problem.q_goal, dtype=np.float64)[None])
+        targets = self._vias(start, goal, problem.name or "")
+        heading_goal = torch.zeros(K, dtype=torch.bool, device=dev)
+        heading_goal[0] = True
+        q = start.repeat(K, 1)
+        path = [q.double().cpu().numpy()]
+        clear = self._clearance(grid, bounds, q, q).double().cpu().numpy()
+        done = np.zeros(K, dtype=bool)
+        reached = np.zeros(K, dtype=bool)
+        still = np.zeros(K, dtype=int)
+        ends = np.full(K, -1)
+        chosen = None
+        with torch.inference_mode():
+            policy.reset(env)
+            for step in range(cfg.max_steps):
+                active = torch.as_tensor(np.flatnonzero(~done), device=dev)
+                q_next = q.clone()
+                q_next[active] = policy.step(q[active], targets[active], env.subset(active))
+                clear = np.minimum(clear, self._clearance(grid, bounds, q, q_next).double().cpu().numpy())
+                moved = (q_next - q).norm(dim=1).cpu().numpy()
+                q = q_next
+                q_np = q.double().cpu().numpy()
+                path.append(q_np)
+                turn = (~heading_goal) & (((q - targets).norm(dim=1) < cfg.via_reach) | (step >= cfg.max_steps // 3))
+                targets[turn], heading_goal[turn] = goal, True
+                pos, rot = goal_errors(ee_poses(robot, q_np), goal_pose)
+                hg = heading_goal.cpu().numpy()
+                for k in np.flatnonzero(~done):
+                    still[k] = still[k] + 1 if moved[k] < cfg.stall_threshold else 0
+                    if hg[k] and pos[k] < cfg.position_tolerance and rot[k] < cfg.orientation_tolerance:
+                        done[k], reached[k], ends[k] = True, True, step + 1
+                    elif (still[k] >= cfg.stall_steps and hg[k]) or not np.isfinite(q_np[k]).all() or \
+                            (k > 0 and clear[k] <= cfg.margin):  # an unclear detour cannot win: stop stepping it
+                        done[k], ends[k] = True, step + 1
+                winners = np.flatnonzero(reached & (clear > cfg.margin))
+                if len(winners):
+                    chosen = int(winners[0])
+                    break
+                if done.all():
+                    break
+        if chosen is not None:
+            self.chosen["plain" if chosen == 0 else "via"] += 1
+        else:
+            chosen = 0
+            self.chosen["unclear" if reached[0] else "unreached"] += 1
+        end = ends[chosen] if ends[chosen] >= 0 else len(path) - 1
+        trajectory = np.stack([p[chosen] for p in path[:end + 1]])
+        return PlannedTrajectory(trajectory, time.perf_counter() - t0,
+                                 "" if reached[chosen] else "no candidate reached the goal")

@@ -24,7 +24,8 @@ from torch import nn
 
 from samp.scene.grid import sample_grid
 
-__all__ = ["PolicyConfig", "SAMPNet", "denormalize", "goal_features", "normalize", "sample_by_scene"]
+__all__ = ["PolicyConfig", "SAMPNet", "denormalize", "goal_features", "max_over_points", "normalize",
+           "sample_by_scene"]
 
 
 @dataclass
@@ -87,6 +88,23 @@ def sample_by_scene(volumes: torch.Tensor, scene_index: torch.Tensor, points: to
         vals = sample_grid(volumes[s:s + 1], points[rows].reshape(1, -1, 3), bounds)  # (1, C, k * M)
         out = out.index_put((rows,), vals.reshape(-1, len(rows), M).transpose(0, 1))
     return out
+
+
+def max_over_points(mlp: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """`mlp(x).amax(dim=1)` for x (B, M, D) -> (B, F), with gradients computed from the winning points only.
+
+    A max over points passes gradient to one point per output feature, so at most F of the M points (F = 128
+    of 1024 in the quickstart network) take part in the backward pass. With autograd on, the shared MLP runs
+    once over all points without a graph to find the winners, then again with a graph over the F winning
+    points (one per feature, so B x F rows): the values and the gradients are amax's (ties aside, which
+    amax would split), at about half the cost of differentiating the MLP over every point.
+    """
+    if not torch.is_grad_enabled() or not (x.requires_grad or any(p.requires_grad for p in mlp.parameters())):
+        return mlp(x).amax(dim=1)
+    with torch.no_grad():
+        winners = mlp(x).argmax(dim=1)  # (B, F) the point that holds each feature's maximum
+    picked = x.gather(1, winners[..., None].expand(-1, -1, x.shape[-1]))  # (B, F, D)
+    return mlp(picked).diagonal(dim1=1, dim2=2)  # feature f of the point that won feature f
 
 
 def _mlp(sizes: list[int], last_activation: bool = True) -> nn.Sequential:
@@ -198,7 +216,7 @@ class SAMPNet(nn.Module):
             env = sample_by_scene(features, scene_index, points, box).transpose(1, 2)  # (B, M, C)
             parts.append(self.env_mlp(torch.cat([env, robot_sdf[..., None]], dim=-1).reshape(B, -1)))
         if self.cfg.point_encoder:
-            parts.append(self.point_mlp(torch.cat([points, robot_sdf[..., None]], dim=-1)).amax(dim=1))
+            parts.append(max_over_points(self.point_mlp, torch.cat([points, robot_sdf[..., None]], dim=-1)))
         u = u_t + self.fusion(torch.cat(parts[::-1], dim=-1))
         # Clamped to the limits in value; in the backward pass the clamp lets gradients through, so a
         # prediction beyond a limit is pulled back instead of stalling on a zero gradient.

@@ -155,8 +155,8 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         with torch.no_grad():
             true_points = self.robot.transform_points(q_next)
         step = StepPrediction(q_hat, q_next, pred_points, true_points, self.grids, scene, self.bounds,
-                              robot_sdf=lambda: self.robot_sdf.at_robot_points(q_hat.detach(), pred_points.detach(),
-                                                                               poses.detach(), self.robot_sdf_tables))
+                              robot_sdf=lambda needed: self.robot_sdf.at_robot_points(
+                                  q_hat.detach(), pred_points.detach(), poses.detach(), self.robot_sdf_tables, needed))
         return loss_terms(step, self.loss_cfg, off=() if self.hparams.collision_loss else ("coll",))
 
     # ------------------------------------------------------------------ checkpoints

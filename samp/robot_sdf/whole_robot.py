@@ -137,19 +137,22 @@ class RobotSDF(nn.Module):
         return values.min(dim=1).values.view(B, N)
 
     def at_robot_points(self, q: torch.Tensor, points: torch.Tensor | None = None,
-                        poses: torch.Tensor | None = None, tables: int = 0) -> torch.Tensor:
+                        poses: torch.Tensor | None = None, tables: int = 0,
+                        needed: torch.Tensor | None = None) -> torch.Tensor:
         """q (B, n) -> (B, M) the robot SDF at the robot's own points posed at q, T_q(P): the values of
         `query(robot.transform_points(q), q)`, for a fraction of the work (`samp.robot_sdf.robot_points`).
 
         `points` and `poses` are `robot.transform_points(q)` and `robot.link_poses(q)` when the caller has
         them. `tables` K > 0 reads the pairs one joint apart from tables of K angles (an approximation of
-        the network); 0 is exact. No gradients (the robot SDF is frozen wherever a policy uses it).
+        the network); 0 is exact. `needed` (B, M) bool: only those values are wanted (the others are upper
+        bounds of theirs), e.g. where a loss term is active. No gradients (the robot SDF is frozen wherever a
+        policy uses it).
         """
         with torch.no_grad():
             poses = self.robot.link_poses(q) if poses is None else poses
             points = self.robot.transform_points(q, poses) if points is None else points
             self._check(points, q)
-            return self.self_distances(tables).query(q, points, poses)
+            return self.self_distances(tables).query(q, points, poses, needed)
 
     def self_distances(self, tables: int = 0):
         """The `SelfDistances` of these weights (built on first use, rebuilt when the weights, device or

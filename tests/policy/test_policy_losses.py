@@ -60,8 +60,8 @@ def _step(robot_sdf_calls: list):
     pred = torch.tensor([[[0.0, 0.0, 0.55], [0.0, 0.0, 0.5]]])  # sdf 0.05 and 0
     true = pred + torch.tensor([0.1, 0.0, 0.0])
 
-    def robot_sdf():
-        robot_sdf_calls.append(1)
+    def robot_sdf(needed):
+        robot_sdf_calls.append(needed)
         return torch.full((1, 2), 0.015)  # d_target: weight exp(0) = 1
 
     return StepPrediction(torch.tensor([[0.0, 1.0]]), torch.tensor([[0.5, 1.0]]), pred, true, grid,
@@ -81,7 +81,7 @@ def test_loss_terms_weigh_each_term_by_its_config_field():
     assert math.isclose(out["match"], match, rel_tol=1e-5) and math.isclose(out["coll"], coll, rel_tol=1e-5)
     assert math.isclose(out["config"], config, rel_tol=1e-6)
     assert math.isclose(out["loss"], 2.0 * match + 10.0 * coll + 3.0 * config, rel_tol=1e-5)
-    assert calls == [1], "the robot SDF is queried once, when the collision term needs it"
+    assert len(calls) == 1 and calls[0].tolist() == [[True, True]], "queried once, for the points where the hinge acts"
     calls.clear()
     off = loss_terms(_step(calls), LossConfig(match=2.0, collision=10.0, config=3.0), off=("coll",))
     assert float(off["coll"]) == 0.0 and calls == [] and math.isclose(off["loss"], 2.0 * match + 3.0 * config, rel_tol=1e-5)

@@ -77,3 +77,29 @@ def test_goal_features_are_the_documented_functions_of_start_and_goal():
     torch.testing.assert_close(f[1, 9:12], torch.zeros(3))  # no NaN at the goal
     torch.testing.assert_close(f[:, 12], torch.tensor([0.5, 0.0]))
     torch.testing.assert_close(goal_features(u_t, u_g, extra=False), torch.cat([u_t, u_g], dim=1))
+
+
+def test_max_over_points_has_amax_values_and_gradients():
+    """The PointNet's max through the winning points only (`max_over_points`) against amax over all points:
+    the same values and the same parameter and input gradients (a wrong winner, a transposed diagonal or a
+    missing point would change them)."""
+    from samp.policy.network import _mlp, max_over_points
+
+    torch.manual_seed(3)
+    mlp = _mlp([4, 16, 32, 24])
+    x = torch.randn(5, 300, 4, requires_grad=True)
+    w = torch.randn(5, 24)
+    grads = []
+    for fn in (lambda: mlp(x).amax(dim=1), lambda: max_over_points(mlp, x)):
+        mlp.zero_grad()
+        x.grad = None
+        out = fn()
+        (out * w).sum().backward()
+        grads.append((out.detach(), [p.grad.clone() for p in mlp.parameters()], x.grad.clone()))
+    (a, pa, xa), (b, pb, xb) = grads
+    torch.testing.assert_close(b, a, rtol=0, atol=1e-6)
+    for u, v in zip(pa, pb):
+        torch.testing.assert_close(v, u, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(xb, xa, rtol=1e-5, atol=1e-6)
+    with torch.no_grad():  # no autograd: the plain max
+        assert torch.equal(max_over_points(mlp, x), mlp(x).amax(dim=1))

@@ -31,6 +31,20 @@ def test_exact_path_equals_every_pair_evaluated(trained_sdf, batch):
         assert torch.allclose(trained_sdf.at_robot_points(q[b:b + 1], tables=0), got[b:b + 1], atol=1e-7)
 
 
+@pytest.mark.parametrize("tables", [0, 64])
+def test_needed_points_are_exact_and_the_others_upper_bounds(trained_sdf, tables):
+    """`needed` restricts the network pairs to some points (the collision loss asks only where its hinge
+    acts): those values equal the full query's, and the others never fall below the true distance."""
+    q = _configurations(trained_sdf.robot, 12, seed=21)
+    full = trained_sdf.at_robot_points(q, tables=tables)
+    needed = torch.rand(full.shape, generator=torch.Generator().manual_seed(1)) < 0.2
+    got = trained_sdf.at_robot_points(q, tables=tables, needed=needed)
+    assert torch.equal(got[needed], full[needed])
+    assert (got[~needed] >= full[~needed] - 1e-7).all() and (got[~needed] > full[~needed] + 1e-3).any()
+    none = trained_sdf.at_robot_points(q, tables=tables, needed=torch.zeros_like(needed))
+    assert torch.equal(none[~needed], got[~needed])  # a point's value depends on whether it is needed only
+
+
 def test_tables_approximate_the_network_and_converge(trained_sdf):
     q = _configurations(trained_sdf.robot, 60, seed=3)
     truth = _oracle(trained_sdf, q)

@@ -32,6 +32,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--robot-sdf", help="policy: a trained robot SDF artifact for the untrained policy networks")
     ap.add_argument("--tables", type=int, default=None,
                     help="policy: joint angles per robot-SDF table (0: exact; default: the system's own)")
+    ap.add_argument("--baseline-src", help="policy: an older checkout (e.g. a git worktree) whose training step is timed "
+                    "in the same run against this one's (needs --robot-sdf), with the loss on the same batch")
 
 
 def _median_ms(fn, repeats: int = 50) -> float:
@@ -148,6 +150,50 @@ def _time_training(system, robot, scenes: list, g: torch.Generator, device: torc
     return t_grouped, t_plain
 
 
+def _step_in_process(src: str, args, *extra: str) -> dict:
+    """`train_step.py` run with `src`'s samp in a fresh process (its result line, parsed)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cmd = [sys.executable, str(Path(__file__).with_name("train_step.py")), "--src", src, "--robot-sdf", args.robot_sdf,
+           "--n-e", str(args.anchors[0]), *extra]
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    if out.returncode:
+        raise RuntimeError(f"timing a training step of {src} failed:\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _against_checkout(args, metrics: dict) -> list[list]:
+    """Training samples per second of the quickstart network at B = 50, this checkout against
+    --baseline-src, each in its own process in this run; and the loss on the same batch with this
+    checkout at the older settings (exact robot SDF, bounds registration), which must match."""
+    from pathlib import Path
+
+    if not args.robot_sdf:
+        raise SystemExit("--baseline-src needs --robot-sdf ARTIFACT (a trained robot_sdf.pt): an untrained robot SDF "
+                         "culls pairs unlike a trained one")
+    here = str(Path(__file__).resolve().parents[2])
+    new, old = _step_in_process(here, args), _step_in_process(args.baseline_src, args)
+    exact = _step_in_process(here, args, "--exact", "--steps", "1")
+    key = f"n{args.anchors[0]}/checkout"
+    metrics.update({f"{key}/train_samples_per_s": B / new["seconds_per_step"],
+                    f"{key}/baseline_train_samples_per_s": B / old["seconds_per_step"],
+                    f"{key}/train_speedup": old["seconds_per_step"] / new["seconds_per_step"],
+                    f"{key}/train_cpu_speedup": old["cpu_seconds_per_step"] / new["cpu_seconds_per_step"],
+                    f"{key}/loss": new["loss"], f"{key}/loss_exact_settings": exact["loss"],
+                    f"{key}/baseline_loss": old["loss"]})
+    rel = abs(exact["loss"] - old["loss"]) / abs(old["loss"])
+    return [[f"train step B={B}, n_e={args.anchors[0]} ({new['threads']} threads), vs {args.baseline_src}",
+             f"{B / new['seconds_per_step']:.0f} samples/s", f"{B / old['seconds_per_step']:.0f} samples/s",
+             f"{old['seconds_per_step'] / new['seconds_per_step']:.2f}x"],
+            ["  CPU seconds per step", f"{new['cpu_seconds_per_step']:.3f} s", f"{old['cpu_seconds_per_step']:.3f} s",
+             f"{old['cpu_seconds_per_step'] / new['cpu_seconds_per_step']:.2f}x"],
+            ["  loss on the same batch (older settings / defaults)", f"{exact['loss']:.7f} / {new['loss']:.7f}",
+             f"{old['loss']:.7f}", f"rel. diff {rel:.1e}"]]
+
+
 def run(args) -> tuple[dict, list[list]]:
     """Per configuration: the step's stages at B = 1, the step against the generic path, the batched step, and
     (untrained networks only) training samples per second, scene-grouped against random batches."""
@@ -199,6 +245,8 @@ def run(args) -> tuple[dict, list[list]]:
                             f"{key}/grouped_speedup": t_plain / t_grouped})
             rows.append([f"  train (B={B})", f"{B / t_grouped:.0f} samples/s", f"{B / t_plain:.0f} samples/s (random)",
                          f"{t_plain / t_grouped:.2f}x"])
+    if args.baseline_src:
+        rows += _against_checkout(args, metrics)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     metrics["peak_rss_mb"] = peak
     if device.type == "cuda":

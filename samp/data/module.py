@@ -111,6 +111,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
             issue 17, is a deprecated synonym) or a fraction in (0, 1) of the training scenes' trajectories.
         val_samples: steps per validation pass (a fixed, seeded subset).
         max_trajectories: use at most this many training trajectories (None: all), for quick runs.
+        max_scenes: train on the demonstrations of the first this many training scenes only (None: all), for
+            data-scaling studies (`conf/sweep/data_scaling.yaml`); validation is unchanged.
 
     After `setup`, `binding` is what a model trained on this data depends on (`DatasetBinding`). A missing
     dataset is an error here; the training recipe builds it first when asked (`build_missing.dataset`).
@@ -118,7 +120,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
 
     def __init__(self, dataset: str, n_e: int = 40, batch_size: int = 50, scenes_per_batch: int = 2,
                  noise: float = 0.03, val_split: str | float = "val", val_samples: int = 2000,
-                 max_trajectories: int | None = None, seed: int = 0, root: str | None = None):
+                 max_trajectories: int | None = None, max_scenes: int | None = None, seed: int = 0,
+                 root: str | None = None):
         super().__init__()
         if val_split in SPLIT_ALIASES:
             warnings.warn(f"val_split={val_split!r} is deprecated: write val_split='{SPLIT_ALIASES[val_split]}' (the "
@@ -128,12 +131,14 @@ class TrajectoryDataModule(pl.LightningDataModule):
                                        and 0 < val_split < 1)):
             raise ValueError(f"val_split must be 'val' (the validation scenes) or a fraction in (0, 1) of the training "
                              f"trajectories, got {val_split!r}")
+        if max_scenes is not None and (isinstance(max_scenes, bool) or not isinstance(max_scenes, int) or max_scenes < 1):
+            raise ValueError(f"max_scenes must be null or an integer >= 1, got {max_scenes!r}")
         if batch_size < 1 or scenes_per_batch < 0 or noise < 0:
             raise ValueError(f"batch_size >= 1, scenes_per_batch >= 0 and noise >= 0 expected; got {batch_size}, "
                              f"{scenes_per_batch}, {noise}")
         self.ref, self.n_e, self.batch_size, self.val_samples = dataset, int(n_e), int(batch_size), int(val_samples)
         self.scenes_per_batch, self.noise, self.val_split = int(scenes_per_batch), float(noise), val_split
-        self.max_trajectories, self.seed, self.root = max_trajectories, int(seed), root
+        self.max_trajectories, self.max_scenes, self.seed, self.root = max_trajectories, max_scenes, int(seed), root
         self.ds = None
         self.binding: DatasetBinding | None = None
 
@@ -176,6 +181,12 @@ class TrajectoryDataModule(pl.LightningDataModule):
             train = train[torch.randperm(len(train), generator=g)]
             cut = max(1, int(round(self.val_split * len(train))))
             train, val = train[cut:].sort().values, train[:cut].sort().values
+        if self.max_scenes is not None:
+            scenes = [i for i, split in enumerate(ds.scene_split) if split == "train"]
+            if self.max_scenes > len(scenes):
+                raise ValueError(f"max_scenes={self.max_scenes}, but dataset {self.dataset_id} has {len(scenes)} training "
+                                 "scenes")
+            train = train[torch.isin(ds.traj_scene[train], torch.tensor(scenes[: self.max_scenes]))]
         if self.max_trajectories is not None:
             train = train[: int(self.max_trajectories)]
         if len(train) == 0:

@@ -160,6 +160,8 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.train experiment=samp_n40", Same("python -m samp.train -m sweep=anchor_size hydra/launcher="
                                                       "runs_joblib hydra.launcher.n_jobs=2", "its first member")),
     ("python -m samp.train experiment=samp_no_coll_loss", Compose("experiment=samp_no_coll_loss", LONG)),
+    ("python -m samp.train experiment=samp_cpu", Compose("experiment=samp_cpu", LONG)),
+    ("python -m samp.train -m sweep=data_scaling", Compose("-m sweep=data_scaling", LONG)),
     ("python -m samp.train experiment=samp_n100 logger=mlflow", Compose("experiment=samp_n100 logger=mlflow", LONG)),
     ("python -m samp.train experiment=samp_n100 logger=wandb", Compose("experiment=samp_n100 logger=wandb", LONG)),
     ("python -m samp.train experiment=mpinet [trainer=gpu] [datamodule.dataset=NAME@ID]",
@@ -179,6 +181,8 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=unseen out=/tmp/bench",
      Run("python -m samp.eval run={run} splits=[] benchmark=smoke benchmark_problems=2 record=false out={tmp}/bench",
          ["bench/metrics.json", "datasets/bench_smoke/*/manifest.json"])),
+    ("python -m samp.eval run=runs/EXP/TIME check=8 out=/tmp/check",
+     Run(f"python -m samp.eval run={{run}} check=2 out={{tmp}}/check {EVAL}", ["check/metrics.json"], ["samp+check"])),
     ("python -m samp.eval planner=expert dataset=quickstart",
      Run(f"python -m samp.eval planner=expert dataset=smoke {EVAL}", ["runs/eval/expert_smoke@*/metrics.json"])),
     ("python -m samp.eval planner=straight dataset=quickstart benchmark=null",

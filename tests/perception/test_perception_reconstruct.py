@@ -10,8 +10,6 @@ from samp.perception import Scan, reconstruct_grid, reconstruction_error, signed
 from samp.sim import World
 from samp.sim.camera import robot_volume
 
-from conftest import ring_cameras
-
 N_E = 32
 
 
@@ -23,7 +21,7 @@ def away(panda) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def ring_scans(panda, box_scene):
+def ring_scans(panda, box_scene, ring_cameras):
     with World(panda, box_scene) as world:
         return world.capture(ring_cameras(depth_noise=0.001, dropout=0.01), q=away(panda))
 

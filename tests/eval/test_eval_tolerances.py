@@ -144,3 +144,33 @@ def test_only_the_sub_steps_see_a_thin_plate(panda):
     assert 0.7 * bound < depth < bound + 0.002, f"oracle bound {1e3 * bound:.1f} mm, got {1e3 * depth:.1f} mm"
     coarse = _one(panda, THIN, [start, end], end, substep_resolution=2.0)
     assert coarse["checked_states"] == 2 and not coarse["collision"], "without sub-steps only the clear waypoints"
+
+
+class _Jump:
+    """A step policy that goes straight to `target` and stays there."""
+
+    name, n_e = "jump", None
+
+    def __init__(self, robot, target: np.ndarray):
+        self.robot, self.target = robot, torch.as_tensor(target)
+
+    def step(self, q, q_goal, env):
+        return self.target.to(q).expand_as(q).clone()
+
+
+@pytest.mark.parametrize("miss", [("position", 19.9, True), ("position", 20.1, False),
+                                  ("orientation", 14.9, True), ("orientation", 15.1, False)])
+def test_the_rollout_stops_exactly_at_the_tolerances(panda, miss):
+    """A rollout ends as "reached" after the first step that lands within 2 cm and 15 deg, and otherwise runs
+    on (here it stalls). Catches the rollout's own stopping test drifting from the judged tolerances."""
+    from samp.eval import rollout
+    from samp.eval.config import RolloutConfig
+
+    kind, amount, inside = miss
+    end, goal = _base_miss(panda, amount / 1e3) if kind == "position" else _flange_turn(panda, amount)
+    start = goal.copy()
+    start[1] -= 0.3
+    (result,) = rollout(_Jump(panda, end), [Problem(EMPTY, start, goal)], RolloutConfig(max_steps=10, stall_steps=3))
+    expected = ("reached", 2) if inside else ("stalled", 5)
+    assert (result.termination, len(result.trajectory)) == expected, \
+        f"{amount} {kind}: expected {expected}, got {(result.termination, len(result.trajectory))}"

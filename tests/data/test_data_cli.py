@@ -14,6 +14,8 @@ import pytest
 from samp.data.generation import work_dir
 from samp.data.spec import load_spec
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 OVERRIDES = ["+dataset=quickstart", "dataset.name=resumed", "dataset.train_scenes=2", "dataset.val_scenes=1",
              "dataset.trajectories_per_scene=3", "dataset.eval_problems_per_scene=1", "dataset.generators=[tabletop]",
              "dataset.resolutions=[8]"]

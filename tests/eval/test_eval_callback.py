@@ -10,6 +10,8 @@ from torch.utils.data import DataLoader, TensorDataset
 from samp.data import open_dataset
 from samp.eval import EvalCallback, StraightLinePolicy, evaluate
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 class _Still:
     """Never moves: success 0 on every problem."""

@@ -13,6 +13,8 @@ from samp.runs.registry import find_runs, load_run, scan_runs
 
 from test_runs_protocols import protocol_2_run
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 DAMAGE = {"invalid-json": '{"status": "compl', "a-list": "[1, 2]", "metrics-a-list": json.dumps({"metrics": [1, 2]})}
 
 

@@ -12,6 +12,8 @@ import threading
 
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 HAS_MLFLOW = importlib.util.find_spec("mlflow") is not None
 STEPS = 160
 

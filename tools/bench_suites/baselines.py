@@ -46,7 +46,8 @@ def _baseline_planners(args, scenes) -> tuple[dict, set]:
             system = instantiate(compose_train_config([f"+experiment={kind}", f"robot={args.robot}"]).system)
         robot = system.robot
         grids = torch.stack([scene.anchor_grid(args.n_e) for scene in scenes])  # (S, n_e, n_e, n_e)
-        system.bind(DatasetBinding(robot.name, robot.asset_hash, "bench (untrained)", args.n_e, scenes[0].bounds, grids))
+        system.bind(DatasetBinding(robot.name, robot.asset_hash, "bench (untrained)", args.n_e, scenes[0].bounds,
+                                   grids))
         system = system.to(torch.device(args.device)).eval()
         planners[kind] = SAMPStepPolicy(system) if kind == "samp" else system.planner()
     return planners, set(missing)

@@ -111,3 +111,21 @@ def test_mlflow_records_params_metrics_and_lineage_tags_in_sqlite(resumed):
     assert min(history) < 10 and max(history) >= STEPS - 5, history
     final = client.get_metric_history(run.info.run_id, "eval/whole_robot/mae_all_mm")
     assert [m.value for m in final] == [pytest.approx(record["metrics"]["eval/whole_robot/mae_all_mm"])]
+
+
+def test_resume_without_a_checkpoint_is_refused_and_changes_nothing(resumed, cli, tmp_path):
+    """A run folder with a run.json but no checkpoints/last.ckpt (stopped before its first checkpoint):
+    `resume=` exits non-zero saying so and how to go on, and leaves the folder as it was."""
+    import shutil
+
+    _, folder, _, _, _ = resumed
+    copy = tmp_path / "robot_sdf_panda" / folder.name
+    copy.mkdir(parents=True)
+    shutil.copy2(folder / "run.json", copy / "run.json")
+    before = (copy / "run.json").read_text()
+    again = cli("samp.train", [f"resume={copy}"], tmp_path)
+    assert again.returncode != 0, again.stdout[-2000:]
+    message = again.stdout + again.stderr
+    assert f"cannot resume {copy}" in message and "has no last.ckpt" in message and "start it again" in message, \
+        message[-2000:]
+    assert (copy / "run.json").read_text() == before and sorted(p.name for p in copy.iterdir()) == ["run.json"]

@@ -12,6 +12,8 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 ENTRY_POINTS = ["samp.train", "samp.eval", "samp.data", "samp.runs", "samp.robot", "samp.scene"]
 
 

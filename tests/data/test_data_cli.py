@@ -8,12 +8,13 @@ import re
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
 from samp.data.generation import work_dir
 from samp.data.spec import load_spec
+
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
 
 OVERRIDES = ["+dataset=quickstart", "dataset.name=resumed", "dataset.train_scenes=2", "dataset.val_scenes=1",
              "dataset.trajectories_per_scene=3", "dataset.eval_problems_per_scene=1", "dataset.generators=[tabletop]",
@@ -30,18 +31,35 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(_cmd(*args), capture_output=True, text=True, timeout=600)
 
 
+# `python -m samp.data` with `run_scene` wrapped so that the process stops itself (SIGSTOP) once its first
+# scene file is written: the test then kills it at exactly that point. Watching for the file from outside
+# was a race: on a loaded machine the generation could finish more scenes, or all of them, before the kill.
+STOP_AFTER_FIRST_SCENE = """
+import os, runpy, signal, sys
+import samp.data.generation as generation
+
+run_scene = generation.run_scene
+
+def first_then_stop(*args, **kwargs):
+    record = run_scene(*args, **kwargs)
+    os.kill(os.getpid(), signal.SIGSTOP)
+    return record
+
+generation.run_scene = first_then_stop
+sys.argv = ["samp.data", *sys.argv[1:]]
+runpy.run_module("samp.data", run_name="__main__", alter_sys=True)
+"""
+
+
 @pytest.fixture(scope="module")
 def resumed(tmp_path_factory):
-    """Generate, kill the process as soon as its first scene file is written, generate again."""
+    """Generate, kill the process right after its first scene file is written, generate again."""
     root = tmp_path_factory.mktemp("datasets")
     work = work_dir(load_spec({**load_spec("quickstart").__dict__, **SPEC}), root)
-    proc = subprocess.Popen(_cmd("generate", *OVERRIDES, f"root={root}", "progress=false"),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 300
-    while not (work / "scene_0000.mcap").is_file():
-        assert proc.poll() is None, "generation ended before it could be killed"
-        assert time.monotonic() < deadline, "no scene file after 300 s"
-        time.sleep(0.05)
+    proc = subprocess.Popen([sys.executable, "-c", STOP_AFTER_FIRST_SCENE, "generate", *OVERRIDES, f"root={root}",
+                             "progress=false"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _, status = os.waitpid(proc.pid, os.WUNTRACED)  # returns when the process stops itself (or ends)
+    assert os.WIFSTOPPED(status), f"generation ended (status {status}) instead of stopping after its first scene"
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     done = sorted(p.name for p in work.glob("scene_*.mcap"))
@@ -53,8 +71,8 @@ def resumed(tmp_path_factory):
 def test_killed_generation_resumes_without_redoing_finished_scenes(resumed):
     root, done, inodes, result = resumed
     assert result.returncode == 0, result.stderr
-    assert 1 <= len(done) < 3, done
-    assert f"resuming, {len(done)} of 3 scenes already done" in result.stdout
+    assert done == ["scene_0000.mcap"], done
+    assert "resuming, 1 of 3 scenes already done" in result.stdout
     assert "3 scenes (2 train, 1 val, 0 test), " in result.stdout and " 3 evaluation problems (" in result.stdout
     (folder,) = [p for p in (root / "resumed").iterdir() if not p.name.startswith(".")]
     for name in done:  # merged by hard link: the very file the killed run wrote

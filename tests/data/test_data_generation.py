@@ -16,6 +16,8 @@ from samp.data import (DatasetError, GenerationError, generate, load_spec, open_
                        verify_dataset, write_dataset)
 from samp.data.mcap_io import read_scene_file
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 TINY = {"name": "tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "val_scenes": 1, "test_scenes": 1,
         "trajectories_per_scene": 3, "eval_problems_per_scene": 2, "generators": ["tabletop", "shelf"],
         "resolutions": [12, 16]}

@@ -17,6 +17,8 @@ from samp.data import DatasetError, generate, open_dataset, read_manifest, verif
 from samp.data.mcap_io import _grid_from_voxels, read_scene_file
 from samp.data.registry import manifest_hash
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 SMALL = {"name": "small", "robot": "panda", "seed": 3, "train_scenes": 1, "val_scenes": 1, "test_scenes": 0,
          "trajectories_per_scene": 2, "eval_problems_per_scene": 1, "generators": ["tabletop"], "resolutions": [10]}
 

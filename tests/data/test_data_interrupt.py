@@ -17,6 +17,8 @@ import pytest
 from samp.data import GenerationError, generate, load_spec, merge
 from samp.data.generation import work_dir
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 SPEC = {"name": "halted", "robot": "panda", "seed": 5, "train_scenes": 4, "val_scenes": 0, "test_scenes": 0,
         "trajectories_per_scene": 4, "eval_problems_per_scene": 0, "generators": ["tabletop"], "resolutions": [8]}
 OVERRIDES = ["+dataset=quickstart", "dataset.name=halted", "dataset.seed=5", "dataset.train_scenes=4",

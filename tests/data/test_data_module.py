@@ -80,6 +80,14 @@ def test_noise_on_q_t_only_and_within_limits(folder):
     k, t = batch["traj"], batch["step"]
     diff = batch["q"] - traj[k, t]
     assert 0.2 < float(diff.std()) < 0.6  # clamping at the limits trims it a little
+    # Small noise, rarely clamped: the std of 64 x 7 = 448 draws is 0.05 within ~3.4 % (1 sigma = 1 / sqrt(2 N));
+    # +-15 % is over 4 sigma. Catches the variance used as the std (0.0025) and noise applied twice (0.071).
+    small = TrajectoryDataModule(str(folder), n_e=8, batch_size=64, noise=0.05)
+    small.setup()
+    batch = next(iter(small.train_dataloader()))
+    diff = batch["q"] - traj[batch["traj"], batch["step"]]
+    assert 0.0425 < float(diff.std()) < 0.0575, f"noise std: expected 0.05, got {float(diff.std()):.4f}"
+    assert abs(float(diff.mean())) < 0.05 * 4 / 448 ** 0.5, f"noise mean: expected 0, got {float(diff.mean()):.4f}"
     assert torch.equal(batch["q_next"], traj[k, t + 1])
     from samp.robot import load_robot_config
 

@@ -10,6 +10,8 @@ from torch.utils.data import DataLoader, TensorDataset
 from samp.data import open_dataset
 from samp.eval import EvalCallback, StraightLinePolicy, evaluate
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 class _Still:
     """Never moves: success 0 on every problem."""
@@ -75,6 +77,24 @@ def test_the_callback_logs_eval_metrics_and_keeps_the_best_checkpoint(tiny_probl
     assert best["epoch"] == 1, f"best.ckpt should be from epoch 1 (the best success), got epoch {best['epoch']}"
     state = next(v for k, v in best["callbacks"].items() if "EvalCallback" in k)
     assert state["best"] == expected["all"]["success_rate"]
+
+
+def test_a_resumed_run_keeps_the_best_score_and_its_checkpoint(tiny_problems, panda, tmp_path):
+    """Stopped after epoch 1 (scores 0, s) and resumed from its checkpoint for epoch 2 (score 0): the callback
+    restores best = s from the checkpoint, so epoch 2 does not overwrite best.ckpt, and its history goes on.
+    A callback that forgot its best score on resume would take epoch 2's 0 as a new best."""
+    _, problems = tiny_problems
+    first = EvalCallback(problems=problems, every_k_epochs=1, split="val")
+    trainer = _trainer(tmp_path, first, epochs=2)
+    trainer.fit(TinySystem(panda))
+    s = first.best
+    assert s is not None and s > 0, first.history
+    trainer.save_checkpoint(tmp_path / "last.ckpt")
+    again = EvalCallback(problems=problems, every_k_epochs=1, split="val")
+    _trainer(tmp_path, again, epochs=3).fit(TinySystem(panda), ckpt_path=tmp_path / "last.ckpt")
+    assert again.best == s and [h["eval/success_rate"] for h in again.history] == [0.0, s, 0.0], again.history
+    best = torch.load(tmp_path / "checkpoints" / "best.ckpt", weights_only=False)
+    assert best["epoch"] == 1, f"best.ckpt must stay the one of epoch 1, got epoch {best['epoch']}"
 
 
 def test_the_callback_runs_every_k_epochs_only(tiny_problems, panda, tmp_path):

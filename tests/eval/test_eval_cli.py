@@ -11,6 +11,8 @@ import pytest
 from samp.eval.__main__ import main
 from samp.eval.names import METRICS_JSON, METRICS_MD, PROBLEMS_JSONL, RECORDING_RRD
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 def _run_folder(tmp_path, dataset, robot="panda", asset_hash=None, checkpoint=True):
     run = tmp_path / "run"

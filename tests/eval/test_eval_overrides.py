@@ -12,6 +12,8 @@ import torch
 
 from samp.eval.__main__ import main
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "policy"))
 from test_policy_system import SMALL_NET, _robot_sdf_payload  # noqa: E402
 

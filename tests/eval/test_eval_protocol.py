@@ -11,6 +11,8 @@ import pytest
 
 from samp.data import generate, open_dataset
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 DATA = {"name": "proto_data", "robot": "panda", "seed": 5, "train_scenes": 1, "val_scenes": 1, "test_scenes": 0,
         "trajectories_per_scene": 2, "eval_problems_per_scene": 3, "generators": ["tabletop", "shelf"],
         "resolutions": [12]}

@@ -13,6 +13,8 @@ import pytest
 from samp.eval import StraightLinePolicy, evaluate, load_planner, write_recording
 from samp.viz.rollout import risk_colors
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 def _rerun() -> str:
     exe = Path(sys.executable).with_name("rerun")
@@ -59,14 +61,42 @@ def test_risk_colors_run_from_red_at_contact_to_green_when_clear():
     assert colors[0][0] > colors[0][1] and colors[2][1] > colors[2][0], f"red then green, got {colors.tolist()}"
 
 
-def test_the_drawn_sdf_plane_is_the_anchor_grids_slice(tiny_problems):
-    """The recording computes only the slice it draws; it must equal that slice of the anchor grid."""
+def _trimesh_sdf(scene, points: np.ndarray) -> np.ndarray:
+    """An oracle independent of `scene.sdf`: the minimum over obstacles of trimesh's signed distance to each
+    primitive's mesh (trimesh: positive inside, hence the minus)."""
+    import trimesh
+
+    from samp.scene import Box, Cylinder, Sphere
+
+    out = np.full(len(points), np.inf)
+    for o in scene.all_obstacles:
+        if isinstance(o, Box):
+            mesh = trimesh.creation.box(extents=o.size)
+        elif isinstance(o, Cylinder):
+            mesh = trimesh.creation.cylinder(radius=o.radius, height=o.height, sections=256)
+        elif isinstance(o, Sphere):
+            mesh = trimesh.creation.icosphere(subdivisions=5, radius=o.radius)
+        else:
+            raise AssertionError(f"the tiny scenes hold primitives only, got {type(o).__name__}")
+        mesh.apply_transform(o.pose.matrix())
+        out = np.minimum(out, -trimesh.proximity.signed_distance(mesh, points))
+    return out
+
+
+def test_the_drawn_sdf_plane_is_the_exact_sdf_there(tiny_problems):
+    """The plane the recording draws (z index 5 of the anchors, as `samp.eval.recording` computes it) is the
+    scene's anchor grid there and matches trimesh's distances to the obstacles' meshes (to 2 mm: the
+    tessellation of round obstacles). Catches a plane at the wrong index or axis, or a wrong SDF."""
     from samp.scene import anchor_points
 
     scene = tiny_problems[1][0].scene
     grid = scene.anchor_grid(12).numpy()
-    plane = np.asarray(scene.sdf(anchor_points(12, scene.bounds)[:, :, 5]))
+    points = anchor_points(12, scene.bounds)[:, :, 5]  # (12, 12, 3), indexed (x, y)
+    plane = np.asarray(scene.sdf(points))
     np.testing.assert_allclose(plane, np.take(grid, 5, axis=2), atol=1e-6)
+    oracle = _trimesh_sdf(scene, points.reshape(-1, 3).numpy()).reshape(12, 12)
+    np.testing.assert_allclose(plane, oracle, atol=2e-3)
+    assert (oracle < 0).any() or np.ptp(oracle) > 0.05, "the plane should cross or pass near an obstacle"
 
 
 def _store_ids(rerun: str, path: Path) -> set[tuple[str, str]]:

@@ -11,6 +11,8 @@ from samp.eval import (EnvBatch, Problem, StraightLinePolicy, dataset_grids, eva
                        problems_from_dataset, rollout)
 from samp.eval.config import RolloutConfig
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 def test_the_experts_own_trajectories_succeed_without_collision(tiny_problems):
     ds, problems = tiny_problems

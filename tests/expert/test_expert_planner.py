@@ -179,6 +179,7 @@ def test_a_rounding_error_beyond_a_limit_is_moved_onto_it(panda, scene):
         refused.reason
 
 
+@pytest.mark.slow  # plans every problem of three robots (about 40 s on a loaded machine)
 def test_the_expert_plans_every_problem_its_sampler_makes(robots):
     """Problems sampled with a float32 robot (as a policy's robot is), planned as the evaluation plans them
     (mode "plan": a float64 copy from `exact_robot`), in one scene of each generator chosen to have starts
@@ -232,6 +233,7 @@ def test_problems_without_goals_are_kept_as_failures(panda, scene):
     assert all(not r.success and r.reason.startswith("no valid goal") and r.trajectory is None for r in results)
 
 
+@pytest.mark.slow  # a subprocess that imports OMPL and plans
 def test_a_process_that_planned_exits_without_nanobind_leak_reports():
     """Every attempt's OMPL objects are freed with it: a process that planned (around an obstacle, with
     path simplification) ends without nanobind's "leaked instance" report, which the dataset workers used

@@ -25,7 +25,7 @@ def box_scene():
     return Scene("one_box", obstacles=(table(), box), bounds=BOX_BOUNDS)
 
 
-def ring_cameras(name: str = "ring", count: int = 4, top: bool = True, size=(96, 72), **noise):
+def _ring_cameras(name: str = "ring", count: int = 4, top: bool = True, size=(96, 72), **noise):
     """`count` cameras around the box (and one above), 1.2 m away, as a camera set mapping."""
     import numpy as np
 
@@ -38,6 +38,13 @@ def ring_cameras(name: str = "ring", count: int = 4, top: bool = True, size=(96,
         cameras.append({"name": "top", "eye": [0.65, 0.0, 1.5], "target": [0.65, 0.0, 0.0], "up": [1.0, 0.0, 0.0]})
     return {"name": name, "seed": 0, "cameras": cameras,
             "common": {"width": size[0], "height": size[1], "fov": 60.0, **noise}}
+
+
+@pytest.fixture(scope="session")
+def ring_cameras():
+    """`ring_cameras(name, count, top, size, **noise)`: a camera set around the box (a fixture, not an import of
+    conftest, so that the tests also run under `--import-mode=importlib`)."""
+    return _ring_cameras
 
 
 TINY_PERCEPTION = {"name": "tiny_perception", "robot": "panda", "seed": 11, "train_scenes": 1, "val_scenes": 1,

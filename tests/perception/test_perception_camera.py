@@ -10,8 +10,6 @@ from samp.scene import Box, Pose, Scene
 from samp.sim import World
 from samp.sim.camera import Camera, camera_set, linear_depth, load_camera_set
 
-from conftest import ring_cameras
-
 
 def test_linear_depth_inverts_the_projection_of_the_depth_buffer():
     near, far = 0.1, 5.0
@@ -73,7 +71,7 @@ def test_the_robots_own_points_are_removed(panda):
     assert len(scan.free_ends) >= image.robot.sum(), "rays to the robot still carve free space"
 
 
-def test_noise_is_seeded_and_as_configured(panda, box_scene):
+def test_noise_is_seeded_and_as_configured(panda, box_scene, ring_cameras):
     cams = ring_cameras(count=1, top=False, size=(80, 60), depth_noise=0.01, dropout=0.2)
     clean = ring_cameras(count=1, top=False, size=(80, 60))
     with World(panda, box_scene) as world:

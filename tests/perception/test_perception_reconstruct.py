@@ -10,8 +10,6 @@ from samp.perception import Scan, reconstruct_grid, reconstruction_error, signed
 from samp.sim import World
 from samp.sim.camera import robot_volume
 
-from conftest import ring_cameras
-
 N_E = 32
 
 
@@ -23,7 +21,7 @@ def away(panda) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def ring_scans(panda, box_scene):
+def ring_scans(panda, box_scene, ring_cameras):
     with World(panda, box_scene) as world:
         return world.capture(ring_cameras(depth_noise=0.001, dropout=0.01), q=away(panda))
 
@@ -90,14 +88,24 @@ def test_signed_distance_of_a_half_space_is_exact_at_voxel_centres():
 
 
 def test_a_cloud_file_with_a_sensor_origin_is_carved_along_its_rays(panda, box_scene, ring_scans, tmp_path):
-    """A user's cloud (points only + sensor origin) gives nearly the grid its depth images give."""
+    """A user's cloud (points only + sensor origin) gives nearly the grid its depth images give, and that grid
+    is close to the exact one near the box and everywhere else.
+
+    Measured (n_e = 24, voxels 26 x 26 x 17 mm): 12.9 mm near obstacles and 7.3 mm over all anchors, the same
+    as from the depth images. An all-zero grid scores 25.8 mm near (it passed the old 26.1 mm bound) and
+    129 mm over all; a grid whose free space reads 0, or with nothing occupied, fails the same way."""
     from samp.perception import save_point_cloud, scan_from_file
 
     files = [scan_from_file(save_point_cloud(tmp_path / f"{s.name}.ply", s.hits), origin=s.origin) for s in ring_scans]
     from_files = reconstruct_grid(files, 24, box_scene.bounds, unknown="free")
     exact = box_scene.anchor_grid(24).numpy()
     report = reconstruction_error(from_files.grid, exact)
-    assert report["mae_near_mm"] < 1e3 * _spacing(box_scene, 24).max(), report
+    zero = reconstruction_error(np.zeros_like(exact), exact)
+    assert report["mae_near_mm"] < 16.0 and report["mae_near_mm"] < 0.65 * zero["mae_near_mm"], (report, zero)
+    assert report["mae_all_mm"] < 12.0, report
+    from_views = reconstruct_grid(ring_scans, 24, box_scene.bounds, unknown="free")
+    same = reconstruction_error(from_files.grid, from_views.grid.numpy())
+    assert same["mae_all_mm"] < 2.0, f"files and depth images should agree, differ by {same}"
 
 
 def test_bad_reconstruction_input_is_refused(ring_scans, box_scene):

@@ -13,13 +13,11 @@ from samp.perception import Scan, load_point_cloud, reconstruct_grid
 from samp.sim import World
 from samp.sim.camera import robot_volume
 
-from conftest import ring_cameras
-
 N_E = 16
 
 
 @pytest.fixture(scope="module")
-def hits(panda, box_scene):
+def hits(panda, box_scene, ring_cameras):
     """The measured surface points of the box scene, every camera together: (N, 3) metres."""
     q = panda.home.numpy().copy()
     q[0] = 2.6

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 COMMON = ["datamodule.n_e=16", "trainer.max_steps=50", "trainer.max_epochs=-1", "trainer.log_every_n_steps=2",
           "trainer.enable_progress_bar=false", "datamodule.batch_size=16", "datamodule.noise=0",
           "datamodule.val_samples=32", "evaluation.problems=1", "evaluation.benchmark=null",

@@ -10,6 +10,8 @@ import torch
 from samp.policy.baselines.mpinet import LABELS, MPiNetConfig, MPiNetNet, even_subset, labelled_cloud
 from samp.policy.baselines.mpinet_system import MPiNetSystem, hinge_collision_loss
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 SMALL = {"robot_points": 48, "obstacle_points": 64, "target_points": 16,
          "levels": [{"centres": 32, "radius": 0.15, "neighbours": 8, "widths": [16, 32]}],
          "global_widths": [32, 64], "config_hidden": [16], "decoder_hidden": [64]}

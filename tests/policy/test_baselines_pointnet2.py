@@ -85,8 +85,23 @@ def test_set_abstraction_and_encoder_shapes():
     enc = PointNet2Encoder(3, [SALevel(32, 0.2, 8, [16]), {"centres": 8, "radius": 0.5, "neighbours": 8, "widths": [24]}],
                            [32, 40])
     assert enc(xyz, feats).shape == (2, 40) and enc.out_features == 40
-    perm = torch.randperm(100)  # the global feature does not depend on the order of the points ... up to FPS's start
-    assert enc(xyz[:, perm], feats[:, perm]).shape == (2, 40)
+
+
+def test_the_global_feature_does_not_depend_on_the_order_of_the_points():
+    """Invariant to any reordering that keeps farthest point sampling's first point, when every ball holds all
+    the points within its radius (a ball of at most `neighbours` takes the first ones found, so truncated
+    balls depend on the order). Catches features gathered from the wrong indices or pooled over the wrong
+    axis; and moving one point must change the feature (it is not a constant)."""
+    torch.manual_seed(0)
+    xyz, feats = torch.rand(2, 100, 3), torch.rand(2, 100, 3)
+    enc = PointNet2Encoder(3, [SALevel(32, 0.2, 100, [16]), SALevel(8, 0.5, 32, [24])], [32, 40]).eval()
+    perm = torch.cat([torch.zeros(1, dtype=torch.long), 1 + torch.randperm(99)])
+    with torch.no_grad():
+        want, got = enc(xyz, feats), enc(xyz[:, perm], feats[:, perm])
+        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6)
+        moved = xyz.clone()
+        moved[:, 50] += 0.3
+        assert (enc(moved, feats) - want).abs().max() > 1e-4, "moving a point must change the global feature"
 
 
 def test_surface_points_lie_on_the_scene_surfaces():

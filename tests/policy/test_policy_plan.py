@@ -19,6 +19,8 @@ from samp.policy.interface import EnvBatch
 from samp.policy.network import denormalize, normalize
 from samp.policy.system import PolicySystem
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 REPO = Path(__file__).resolve().parents[2]
 SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
 

@@ -13,6 +13,8 @@ from samp.robot_sdf.artifact import describe, net_spec
 from samp.robot_sdf.model import UnifiedHashSDF
 from samp.robot_sdf.samples import link_normalisation
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 SPEC = {"name": "pol", "robot": "panda", "seed": 5, "train_scenes": 1, "val_scenes": 1,
         "trajectories_per_scene": 2, "eval_problems_per_scene": 2, "generators": ["tabletop"], "resolutions": [16]}
 SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pybullet as pb
 import pytest
@@ -95,3 +97,31 @@ def test_cuda_matches_cpu(robots):
     gpu = load_robot("panda", dtype=torch.float64).to("cuda")
     got = gpu.transform_points(q.cuda()).cpu()
     assert torch.allclose(got, want, atol=1e-10), f"CUDA differs from CPU by {(got - want).abs().max():.2e}"
+
+
+def test_a_mounted_robot_reports_the_same_base_frame_poses(robots, tmp_path):
+    """The Panda's URDF under an extra root link ("world", the arm mounted 0.3 m forward, 0.5 m up and turned
+    0.7 rad): FK is in the base link's frame, so every pose equals the unmounted arm's. Every shipped robot has
+    its base at the URDF root, where the base transform is the identity and a wrong side (T B^-1 instead of
+    B^-1 T) would go unseen."""
+    import pybullet_data
+    import yaml
+
+    from samp.paths import conf_dir
+    from samp.robot import load_robot
+
+    source = Path(pybullet_data.getDataPath()) / "franka_panda"
+    text = (source / "panda.urdf").read_text()
+    mount = ('<link name="world"/>\n  <joint name="mount" type="fixed"><parent link="world"/><child link="panda_link0"/>'
+             '<origin xyz="0.3 0 0.5" rpy="0 0 0.7"/></joint>\n  <link name="panda_link0">')
+    (tmp_path / "panda_mounted.urdf").write_text(text.replace('<link name="panda_link0">', mount, 1))
+    (tmp_path / "meshes").symlink_to(source / "meshes")
+    cfg = yaml.safe_load((conf_dir() / "robot" / "panda.yaml").read_text())
+    cfg["urdf"] = str(tmp_path / "panda_mounted.urdf")
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump(cfg))
+    mounted, plain = load_robot(tmp_path / "robot.yaml", dtype=torch.float64), robots["panda"]
+    q = random_configurations(plain, 4, seed=5)
+    got, want = mounted.fk(q), plain.fk(q)
+    for name in plain.link_names:
+        torch.testing.assert_close(got[name], want[name], rtol=0, atol=1e-10, msg=lambda m: f"{name}: {m}")
+    torch.testing.assert_close(mounted.transform_points(q), plain.transform_points(q), rtol=0, atol=1e-10)

@@ -21,6 +21,7 @@ def _oracle(sdf, q):
 
 
 @pytest.mark.parametrize("batch", [1, 40])
+@pytest.mark.slow  # trains the hash-grid fixture (shared with the slow model tests)
 def test_exact_path_equals_every_pair_evaluated(trained_sdf, batch):
     q = _configurations(trained_sdf.robot, batch, seed=batch)
     got = trained_sdf.at_robot_points(q, tables=0)
@@ -31,6 +32,7 @@ def test_exact_path_equals_every_pair_evaluated(trained_sdf, batch):
         assert torch.allclose(trained_sdf.at_robot_points(q[b:b + 1], tables=0), got[b:b + 1], atol=1e-7)
 
 
+@pytest.mark.slow  # trains the hash-grid fixture (shared with the slow model tests)
 @pytest.mark.parametrize("tables", [0, 64])
 def test_needed_points_are_exact_and_the_others_upper_bounds(trained_sdf, tables):
     """`needed` restricts the network pairs to some points (the collision loss asks only where its hinge
@@ -45,6 +47,7 @@ def test_needed_points_are_exact_and_the_others_upper_bounds(trained_sdf, tables
     assert torch.equal(none[~needed], got[~needed])  # a point's value depends on whether it is needed only
 
 
+@pytest.mark.slow  # trains the hash-grid fixture (shared with the slow model tests)
 def test_tables_approximate_the_network_and_converge(trained_sdf):
     q = _configurations(trained_sdf.robot, 60, seed=3)
     truth = _oracle(trained_sdf, q)
@@ -55,6 +58,7 @@ def test_tables_approximate_the_network_and_converge(trained_sdf):
     assert errors[512].max() < errors[32].max() / 10
 
 
+@pytest.mark.slow  # trains the hash-grid fixture (shared with the slow model tests)
 def test_nan_configuration_stays_nan(trained_sdf):
     q = trained_sdf.robot.home.to(trained_sdf.robot.dtype).repeat(2, 1)
     q[0, 3] = float("nan")
@@ -63,6 +67,7 @@ def test_nan_configuration_stays_nan(trained_sdf):
         assert d[0].isnan().all() and not d[1].isnan().any()
 
 
+@pytest.mark.slow  # trains the hash-grid fixture (shared with the slow model tests)
 def test_cached_pieces_follow_the_weights(trained_sdf):
     import copy
 

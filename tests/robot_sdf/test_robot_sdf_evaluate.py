@@ -9,11 +9,14 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from samp.robot_sdf.evaluate import (SDFEvalConfig, _link_poses, error_metrics, evaluate_methods, heldout_link_set,
                                      robot_signed_distance)
 from samp.robot_sdf.samples import link_signed_distance
+
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
 
 RERUN = Path(sys.executable).parent / "rerun"
 

@@ -9,6 +9,8 @@ import torch
 
 from samp.robot_sdf.samples import link_signed_distance
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 def _link_points(panda, name: str, count: int, seed: int) -> np.ndarray:
     """Uniform points in the link's (unpadded) bounding box, slightly enlarged."""

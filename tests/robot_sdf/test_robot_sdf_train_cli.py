@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 import torch
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 RERUN = Path(sys.executable).parent / "rerun"
 TINY = ["robot_sdf_samples=tiny", "robot_sdf_eval=tiny", "trainer.max_steps=120", "datamodule.steps_per_epoch=40",
         "datamodule.near_per_step=256", "datamodule.uniform_per_step=128", "trainer.enable_progress_bar=false",

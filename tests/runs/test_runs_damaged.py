@@ -11,7 +11,20 @@ import pytest
 from samp.runs.__main__ import main
 from samp.runs.registry import find_runs, load_run, scan_runs
 
-from test_runs_protocols import protocol_2_run
+
+def _load_sibling(name: str):
+    """A module of this folder loaded by its path: works under every `--import-mode` (importlib puts no test
+    folder on sys.path, so `from test_runs_protocols import ...` fails there)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(f"_sibling_{name}", Path(__file__).with_name(f"{name}.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+protocol_2_run = _load_sibling("test_runs_protocols").protocol_2_run
 
 DAMAGE = {"invalid-json": '{"status": "compl', "a-list": "[1, 2]", "metrics-a-list": json.dumps({"metrics": [1, 2]})}
 

@@ -11,6 +11,8 @@ import pytest
 from samp.runs.figures import plot_learning, plot_outcomes, plot_run
 from samp.runs.registry import Run
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 PNG = b"\x89PNG"
 
 

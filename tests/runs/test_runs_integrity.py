@@ -18,6 +18,8 @@ from samp.integrity import IntegrityError
 from samp.policy.registry import read_checkpoint
 from samp.robot_sdf import load_robot_sdf
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory, cli, tiny_sdf):

@@ -12,6 +12,8 @@ from statistics import NormalDist
 
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 Z = NormalDist().inv_cdf(0.975)
 DATASET, BENCH = "quickstart@a1b2c3d4e5f6", "bench_unseen@0f1e2d3c4b5a"
 RATES = ("success_rate", "reach_rate", "collision_rate")

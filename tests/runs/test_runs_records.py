@@ -9,6 +9,8 @@ import subprocess
 
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 def _git(repo, *args) -> str:
     out = subprocess.run(["git", *args], cwd=repo, capture_output=True, text=True, check=True,

@@ -6,29 +6,42 @@ from __future__ import annotations
 import csv
 import importlib.util
 import json
+import os
 import signal
-import time
+import threading
 
 import pytest
+
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
 
 HAS_MLFLOW = importlib.util.find_spec("mlflow") is not None
 STEPS = 160
 
 
 @pytest.fixture(scope="module")
-def resumed(tmp_path_factory, cli, tiny_sdf):
+def resumed(tmp_path_factory, cli, tiny_sdf, stop_at_first_checkpoint):
     """(runs folder, run folder, the killed process's output, run.json after the kill, the resume's output)."""
     runs = tmp_path_factory.mktemp("resume_runs")
     args = ["+experiment=robot_sdf_panda", f"trainer.max_steps={STEPS}", "callbacks.model_checkpoint.every_n_train_steps=10",
             *tiny_sdf, *(["logger=mlflow"] if HAS_MLFLOW else [])]
-    proc = cli("samp.train", args, runs, popen=True)
+    proc = cli("samp.train", args, runs, popen=True, prelude=stop_at_first_checkpoint)
     ckpts = runs / "robot_sdf_panda"
-    deadline = time.time() + 240
-    while not list(ckpts.glob("*/checkpoints/last.ckpt")) and proc.poll() is None and time.time() < deadline:
-        time.sleep(0.2)
-    assert proc.poll() is None, "the run ended before it could be stopped: " + proc.stdout.read()[-2000:]
-    proc.send_signal(signal.SIGTERM)
-    killed = proc.communicate(timeout=120)[0]
+    output: list[str] = []
+    reader = threading.Thread(target=lambda: output.append(proc.stdout.read()), daemon=True)  # keeps the pipe open
+    reader.start()
+    try:
+        _, status = os.waitpid(proc.pid, os.WUNTRACED)  # until it stops itself after its first last.ckpt
+        if os.WIFSTOPPED(status):
+            assert list(ckpts.glob("*/checkpoints/last.ckpt")), "stopped without a last.ckpt"
+            proc.send_signal(signal.SIGTERM)  # delivered when it continues, mid-training as from a scheduler
+            proc.send_signal(signal.SIGCONT)
+        proc.wait(timeout=300)
+        reader.join(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    killed = "".join(output)
+    assert os.WIFSTOPPED(status), "the run ended before its first checkpoint: " + killed[-2000:]
     assert proc.returncode != 0, killed[-2000:]
     (folder,) = ckpts.iterdir()
     after_kill = json.loads((folder / "run.json").read_text())
@@ -98,3 +111,21 @@ def test_mlflow_records_params_metrics_and_lineage_tags_in_sqlite(resumed):
     assert min(history) < 10 and max(history) >= STEPS - 5, history
     final = client.get_metric_history(run.info.run_id, "eval/whole_robot/mae_all_mm")
     assert [m.value for m in final] == [pytest.approx(record["metrics"]["eval/whole_robot/mae_all_mm"])]
+
+
+def test_resume_without_a_checkpoint_is_refused_and_changes_nothing(resumed, cli, tmp_path):
+    """A run folder with a run.json but no checkpoints/last.ckpt (stopped before its first checkpoint):
+    `resume=` exits non-zero saying so and how to go on, and leaves the folder as it was."""
+    import shutil
+
+    _, folder, _, _, _ = resumed
+    copy = tmp_path / "robot_sdf_panda" / folder.name
+    copy.mkdir(parents=True)
+    shutil.copy2(folder / "run.json", copy / "run.json")
+    before = (copy / "run.json").read_text()
+    again = cli("samp.train", [f"resume={copy}"], tmp_path)
+    assert again.returncode != 0, again.stdout[-2000:]
+    message = again.stdout + again.stderr
+    assert f"cannot resume {copy}" in message and "has no last.ckpt" in message and "start it again" in message, \
+        message[-2000:]
+    assert (copy / "run.json").read_text() == before and sorted(p.name for p in copy.iterdir()) == ["run.json"]

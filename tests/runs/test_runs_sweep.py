@@ -8,6 +8,8 @@ import shutil
 
 import pytest
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 # Typed `+experiment=` below, the experiment is named without the `+` (conf/train.yaml's defaults list has it).
 MEMBERS = ("experiment=robot_sdf_panda,seed=0", "experiment=robot_sdf_panda,seed=1")
 

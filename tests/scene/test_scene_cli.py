@@ -15,6 +15,8 @@ from samp.scene import anchor_points, generate_scene
 from samp.viz import anchor_stride, nearest_anchor_index, slice_quad, slice_values, zero_contour
 from samp.scene.viz import QUAD_TRIANGLES
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 RERUN = Path(sys.executable).parent / "rerun"
 BOUNDS = ((-1.0, -0.5, 0.05), (1.0, 0.7, 1.25))  # unequal spacings, so a swapped axis shows
 

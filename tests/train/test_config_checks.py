@@ -12,6 +12,8 @@ import pytest
 
 from samp.train import compose_train_config
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 
 @pytest.mark.parametrize("override, message", [
     ("datamodule.batch_size=abc", "config key datamodule.batch_size='abc': samp.data.module.TrajectoryDataModule takes "

@@ -9,6 +9,8 @@ from omegaconf import OmegaConf
 
 from samp.data import generate, open_dataset, write_dataset
 
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
+
 SPEC = {"name": "prereq", "robot": "panda", "seed": 2, "train_scenes": 1, "val_scenes": 0, "test_scenes": 0,
         "trajectories_per_scene": 1, "eval_problems_per_scene": 1, "generators": ["tabletop"], "resolutions": [8]}
 

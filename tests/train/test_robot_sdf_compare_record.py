@@ -7,7 +7,11 @@ from __future__ import annotations
 import json
 import os
 
+import pytest
+
 from samp.train.robot_sdf_compare import compare_methods
+
+pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
 
 TINY_SDF = ["robot_sdf_samples=tiny", "datamodule.steps_per_epoch=5", "datamodule.near_per_step=128",
             "datamodule.uniform_per_step=64", "trainer.enable_progress_bar=false", "trainer.max_steps=5",

@@ -50,3 +50,52 @@ def test_cfg_job_on_a_sweep_prints_its_first_member(capsys):
     assert main(["-m", "sweep=anchor_size", "datamodule.dataset=smoke", "--cfg", "job"]) == 0
     out = capsys.readouterr().out
     assert "name: samp_n40" in out and "dataset: smoke" in out, out[:500]
+
+
+def test_every_member_state(tmp_path):
+    """What a sweep member does with the folder it finds, state by state: nothing there -> new; completed with
+    the same overrides -> skip (others: refused); still running here (a live pid on this host) -> refused; stopped
+    (interrupted, failed, or "running" with a dead pid) after a checkpoint -> resume; stopped before any
+    checkpoint -> new, the earlier attempt's run.json and metrics.csv kept under numbered names."""
+    import os
+    import subprocess
+    import sys
+
+    from samp.train.sweep import member_state
+
+    overrides = ["experiment=exp", "seed=0"]
+    folder = tmp_path / "seed=0"
+    folder.mkdir()
+    assert member_state(folder, overrides) == "new"
+
+    def record(**fields):
+        (folder / "run.json").write_text(json.dumps({"overrides": overrides, **fields}))
+
+    record(status="completed")
+    assert member_state(folder, overrides) == "skip"
+    with pytest.raises(ValueError, match="completed with overrides"):
+        member_state(folder, ["experiment=exp", "seed=1"])
+
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        record(status="running", host=os.uname().nodename, pid=alive.pid)
+        with pytest.raises(ValueError, match=f"still running \\(pid {alive.pid}\\)"):
+            member_state(folder, overrides)
+    finally:
+        alive.kill()
+        alive.wait()
+    (folder / "checkpoints").mkdir()
+    (folder / "checkpoints" / "last.ckpt").write_bytes(b"weights")
+    for status, extra in [("running", {"host": os.uname().nodename, "pid": alive.pid}), ("interrupted", {}),
+                          ("failed", {})]:
+        record(status=status, **extra)
+        assert member_state(folder, overrides) == "resume", status
+
+    (folder / "checkpoints" / "last.ckpt").unlink()
+    for attempt in (1, 2):
+        record(status="interrupted", attempt=attempt)
+        (folder / "metrics.csv").write_text(f"step,attempt\n0,{attempt}\n")
+        assert member_state(folder, overrides) == "new"
+        assert not (folder / "run.json").exists() and not (folder / "metrics.csv").exists()
+        assert json.loads((folder / f"run.attempt-{attempt}.json").read_text())["attempt"] == attempt
+        assert (folder / f"metrics.attempt-{attempt}.csv").read_text().endswith(f"0,{attempt}\n")

@@ -22,9 +22,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--baseline-problems", type=int, default=6, help="baselines: problems each planner solves")
 
 
-def _baseline_planners(args, bounds) -> tuple[dict, set]:
+def _baseline_planners(args, scenes) -> tuple[dict, set]:
     """name -> planner for the `baselines` suite: the runs in --runs (samp, mpinet, mpnet by their names),
-    and untrained networks of the default sizes for those missing; and the names of the untrained ones."""
+    and untrained networks of the default sizes for those missing, bound to `scenes`' grids (MPiNet derives
+    its obstacle points from them when bound); and the names of the untrained ones."""
     from hydra.utils import instantiate
 
     from samp.data.binding import DatasetBinding
@@ -44,7 +45,9 @@ def _baseline_planners(args, bounds) -> tuple[dict, set]:
         else:
             system = instantiate(compose_train_config([f"+experiment={kind}", f"robot={args.robot}"]).system)
         robot = system.robot
-        system.bind(DatasetBinding(robot.name, robot.asset_hash, "bench (untrained)", args.n_e, bounds))
+        grids = torch.stack([scene.anchor_grid(args.n_e) for scene in scenes])  # (S, n_e, n_e, n_e)
+        system.bind(DatasetBinding(robot.name, robot.asset_hash, "bench (untrained)", args.n_e, scenes[0].bounds,
+                                   grids))
         system = system.to(torch.device(args.device)).eval()
         planners[kind] = SAMPStepPolicy(system) if kind == "samp" else system.planner()
     return planners, set(missing)
@@ -86,7 +89,7 @@ def run(args) -> tuple[dict, list[list]]:
     exact = load_robot(args.robot, dtype=torch.float64)
     scenes = bench_scenes()
     problems = bench_problems(exact, scenes, args.baseline_problems, named=True)
-    planners, untrained = _baseline_planners(args, scenes[0].bounds)
+    planners, untrained = _baseline_planners(args, scenes)
     planners["expert"] = ExpertTrajectoryPlanner("plan", exact)
     for name, overrides in EXPERT_VARIANTS.items():
         planners[name] = ExpertTrajectoryPlanner("plan", exact, load_expert_config(None, **overrides), name=name)

@@ -1,0 +1,100 @@
+"""The real SAMP policy rolled out, fast: a few training steps on the tiny dataset, the checkpoint loaded by
+`load_policy`, `step` equal to the network's own prediction, and the refusals of `SAMPStepPolicy` (a
+never-fitted system, other workspace bounds, grids at another n_e). The fake policy of the CLI tests and the
+dummy systems elsewhere cannot catch a step that drifts from the trained network or a check that is gone."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from samp.policy.interface import EnvBatch
+
+SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
+
+
+def _payload(robot) -> dict:
+    """A small untrained hash-grid robot SDF in the artifact format (the rollout's wiring is under test here;
+    the trained one is checked in test_policy_system)."""
+    from samp.robot_sdf.artifact import describe, net_spec
+    from samp.robot_sdf.model import UnifiedHashSDF
+    from samp.robot_sdf.samples import link_normalisation
+
+    torch.manual_seed(0)
+    kwargs = {"num_links": len(robot.link_names), "encoding": {"levels": 4, "log2_table_size": 10, "finest": 64},
+              "hidden": [16]}
+    net = UnifiedHashSDF(**kwargs)
+    centres, scales = link_normalisation(robot, 0.02)
+    info = describe(robot, net_spec(net, kwargs), "test", torch.tensor(centres), torch.tensor(scales))
+    return {"info": info, "state_dict": net.state_dict(), "artifact_id": "test"}
+
+
+@pytest.fixture(scope="module")
+def trained(tiny_datamodule, robots, tmp_path_factory):
+    """(data module, fitted system, checkpoint path): three Lightning steps on the tiny dataset."""
+    import pytorch_lightning as pl
+
+    from samp.policy.system import PolicySystem
+
+    dm = tiny_datamodule(32)
+    torch.manual_seed(0)
+    system = PolicySystem(robot="panda", robot_sdf_payload=_payload(robots["panda"]), model=SMALL_NET)
+    system.bind(dm.binding)
+    trainer = pl.Trainer(max_steps=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                         enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
+    trainer.fit(system, datamodule=dm)
+    path = tmp_path_factory.mktemp("samp_policy") / "policy.ckpt"
+    trainer.save_checkpoint(path)
+    return dm, system.eval(), path
+
+
+def _env(dm, rows: int = 5) -> tuple[EnvBatch, dict]:
+    b = dm.train_samples[torch.arange(rows)]
+    bounds = torch.as_tensor(dm.bounds, dtype=torch.float64)[None].expand(len(dm.grids), 2, 3)
+    return EnvBatch(dm.grids, bounds, b["scene"]), b
+
+
+def test_load_policy_steps_as_the_trained_network_predicts(trained):
+    """`load_policy(checkpoint).step` is the fitted network's `predict` on the same inputs, bit for bit.
+    Catches a step that reads other grids, bounds or scenes, or a checkpoint that loses weights."""
+    from samp.policy import load_policy
+    from samp.policy.step import SAMPStepPolicy
+
+    dm, system, path = trained
+    policy = load_policy(path)
+    assert isinstance(policy, SAMPStepPolicy) and policy.n_e == 16
+    env, b = _env(dm)
+    policy.reset(env)
+    got = policy.step(b["q"], b["q_goal"], env)
+    with torch.no_grad():
+        want = system.predict(b["q"], b["q_goal"], system.encode(dm.grids), b["scene"], dm.bounds)
+    assert torch.equal(got, want), f"max difference {float((got - want).abs().max())}"
+    assert not torch.allclose(got, b["q"]), "a step must move the arm"
+    lim = system.robot.joint_limits.to(got)
+    assert ((got >= lim[:, 0] - 1e-6) & (got <= lim[:, 1] + 1e-6)).all(), "steps stay within the joint limits"
+
+
+def test_a_never_fitted_system_is_refused(robots):
+    from samp.policy.step import SAMPStepPolicy
+    from samp.policy.system import PolicySystem
+
+    system = PolicySystem(robot="panda", robot_sdf_payload=_payload(robots["panda"]), model=SMALL_NET)
+    with pytest.raises(ValueError, match="never fitted to a dataset"):
+        SAMPStepPolicy(system)
+
+
+def test_other_bounds_and_another_n_e_are_refused(trained):
+    from samp.policy import load_policy
+
+    dm, _, path = trained
+    policy = load_policy(path)
+    env, b = _env(dm)
+    shifted = EnvBatch(env.grids, env.bounds + torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64), env.scene_index)
+    with pytest.raises(ValueError, match="trained on workspace bounds"):
+        policy.reset(shifted)
+    coarse = EnvBatch(env.grids[:, ::2, ::2, ::2].contiguous(), env.bounds, env.scene_index)
+    with pytest.raises(ValueError, match="reads grids at n_e = 16"):
+        policy.reset(coarse)
+    fresh = load_policy(path)  # a first step resets: the checks run there too
+    with pytest.raises(ValueError, match="reads grids at n_e = 16"):
+        fresh.step(b["q"], b["q_goal"], coarse)

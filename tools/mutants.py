@@ -1,0 +1,186 @@
+"""Planted bugs in samp's numeric core, and whether the tests catch them (a hand-made mutation pass).
+
+    python tools/mutants.py                 # every mutant: plant it, run its tests, restore the file
+    python tools/mutants.py --only M03,M07  # some of them
+    python tools/mutants.py --list          # what each one plants
+
+Each mutant is one text replacement in one file (the old text must occur exactly once) and the test files
+that should notice it. A mutant is "caught" when those tests fail (or time out) with the bug planted and
+"survives" when they pass. The file is always restored: in a `finally`, on Ctrl-C too, and a copy of the
+original is kept in `/tmp/samp_mutants/<this tree>/` until it is restored. The tests should pass on
+the clean tree first (`--baseline` checks that). Sub-processes get OMP_NUM_THREADS=1 and a per-test timeout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BACKUP = Path("/tmp/samp_mutants") / ROOT.as_posix().strip("/").replace("/", "_")
+
+EVAL = ("tests/eval/test_eval_metrics.py", "tests/eval/test_eval_tolerances.py")
+LOSS = ("tests/policy/test_policy_losses.py",)
+SDF = ("tests/scene/test_sdf.py",)
+GRID = ("tests/scene/test_grid.py",)
+FK = ("tests/robot/test_fk.py", "tests/robot/test_serial_fk.py")
+POINTS = ("tests/robot/test_points.py",)
+RSDF = ("tests/robot_sdf/test_robot_sdf_model.py", "tests/robot_sdf/test_robot_sdf_policy_inputs.py")
+DATA = ("tests/data/test_data_module.py",)
+STEP = ("tests/policy/test_policy_plan.py", "tests/policy/test_samp_rollout.py")
+PERC = ("tests/perception/test_perception_reconstruct.py",)
+SHARDS = ("tests/data/test_data_interrupt.py", "tests/data/test_data_shards.py")
+
+
+@dataclass(frozen=True)
+class Mutant:
+    id: str
+    file: str
+    old: str
+    new: str
+    tests: tuple[str, ...]
+    what: str
+
+
+MUTANTS = [
+    Mutant("M01", "samp/eval/metrics.py", "ok = orientation_error < cfg.orientation_tolerance",
+           "ok = orientation_error < 1.2 * cfg.orientation_tolerance", EVAL, "orientation tolerance 18 deg, not 15"),
+    Mutant("M02", "samp/eval/metrics.py", "bool(ok and position_error < t)", "bool(ok and position_error < t + 0.001)",
+           EVAL, "position tolerance 1 mm looser"),
+    Mutant("M03", "samp/eval/checks.py", "s, seg = segment_states(traj, self.resolution)",
+           "s, seg = segment_states(traj, 1e9)", EVAL, "collision sub-steps switched off"),
+    Mutant("M04", "samp/eval/checks.py", "np.maximum(0.0, -world.min_distance(states[obstacle]))",
+           "np.maximum(0.0, world.min_distance(states[obstacle]))", EVAL, "penetration depth sign flipped"),
+    Mutant("M05", "samp/robot/goal.py", "(np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0",
+           "(np.trace(relative, axis1=1, axis2=2) - 1.0) / 3.0", EVAL, "orientation error angle formula"),
+    Mutant("M06", "samp/eval/rollouts.py", "(pos < self.cfg.position_tolerance) & (rot < self.cfg.orientation_tolerance)",
+           "(pos < self.cfg.position_tolerance) & (rot < 2 * self.cfg.orientation_tolerance)",
+           EVAL + ("tests/eval/test_eval_rollout.py",), "rollout stops at 30 deg"),
+    Mutant("M07", "samp/policy/losses.py", "weights = torch.exp(-(robot_sdf.detach() - cfg.d_target) / cfg.tau)",
+           "weights = torch.exp((robot_sdf.detach() - cfg.d_target) / cfg.tau)", LOSS, "collision weight sign"),
+    Mutant("M08", "samp/policy/losses.py", "return diff.abs().mean() + diff.square().mean()",
+           "return diff.abs().mean() + diff.square().sum()", LOSS, "match loss sums instead of averaging"),
+    Mutant("M09", "samp/policy/losses.py", "return (q_pred - q_true).square().sum(dim=-1).mean()",
+           "return (q_pred - q_true).square().mean()", LOSS, "config loss averages over joints"),
+    Mutant("M10", "samp/scene/sdf.py", "inside = q.max(dim=-1).values.clamp(max=0)",
+           "inside = q.min(dim=-1).values.clamp(max=0)", SDF, "box SDF inside uses the wrong axis"),
+    Mutant("M11", "samp/scene/sdf.py", "d = torch.stack([local[..., :2].norm(dim=-1) - radius",
+           "d = torch.stack([local[..., 1:].norm(dim=-1) - radius", SDF, "cylinder radius over (y, z)"),
+    Mutant("M12", "samp/scene/sdf.py", 'torch.einsum("nkj,kji->nki", points[:, None, :] - t, R)',
+           'torch.einsum("nkj,kij->nki", points[:, None, :] - t, R)', SDF, "obstacle frame R instead of R^T"),
+    Mutant("M13", "samp/scene/grid.py", "return (2 * (points - lo) / (hi - lo) - 1).flip(-1)",
+           "return (2 * (points - lo) / (hi - lo) - 1)", GRID, "grid coordinates not reordered to (z, y, x)"),
+    Mutant("M14", "samp/scene/grid.py", 'mode="bilinear", padding_mode="border", align_corners=True',
+           'mode="bilinear", padding_mode="border", align_corners=False', GRID, "half-voxel shift"),
+    Mutant("M15", "samp/scene/grid.py", "torch.linspace(lo[i], hi[i], n_e, dtype=dtype)",
+           "torch.linspace(lo[i], hi[i], n_e + 1, dtype=dtype)[:-1]", GRID, "anchors stop one spacing short"),
+    Mutant("M16", "samp/robot/serial.py", "K[:, 0, 1], K[:, 0, 2], K[:, 1, 0], K[:, 1, 2], K[:, 2, 0], K[:, 2, 1] = -z, y, z, -x, -y, x",
+           "K[:, 0, 1], K[:, 0, 2], K[:, 1, 0], K[:, 1, 2], K[:, 2, 0], K[:, 2, 1] = z, -y, -z, x, y, -x", FK,
+           "joint rotations turn the wrong way"),
+    Mutant("M17", "samp/robot/serial.py", "return prefix[:, self.last + 1] @ self.D", "return prefix[:, self.last] @ self.D",
+           FK, "each link takes the pose before its last joint (off by one)"),
+    Mutant("M18", "samp/robot_sdf/whole_robot.py", "return torch.where(outside, f.clamp(min=0) + gap, f) * self.scales[link]",
+           "return torch.where(outside, f.clamp(min=0), f) * self.scales[link]", RSDF,
+           "distance outside a link's box loses the residual"),
+    Mutant("M19", "samp/robot_sdf/whole_robot.py", "return torch.where(outside, f.clamp(min=0) + gap, f) * self.scales[link]",
+           "return torch.where(outside, f.clamp(min=0) + gap, f)", RSDF, "link distances not scaled back to metres"),
+    Mutant("M20", "samp/data/module.py", "q = q + self.noise * torch.randn(", "q = q + self.noise ** 2 * torch.randn(",
+           DATA, "the noise's variance used as its std"),
+    Mutant("M21", "samp/policy/step.py", "        system.fitted()\n", "", STEP, "a never-fitted system is not refused"),
+    Mutant("M22", "samp/policy/step.py", "        self.system.check_env(env)\n", "", STEP,
+           "grids at another n_e or bounds are not refused"),
+    Mutant("M23", "samp/policy/base.py", "if not torch.allclose(env.bounds, bounds.expand_as(env.bounds), atol=1e-9):",
+           "if False:", STEP, "other workspace bounds are not refused"),
+    Mutant("M24", "samp/perception/reconstruct.py", "return np.where(occupied, -(inside - spacing.min()), outside)",
+           "return np.where(occupied, -(inside - spacing.min()), 0.0 * outside)", PERC,
+           "free space reads as distance 0"),
+    Mutant("M25", "samp/perception/reconstruct.py", "        occupied[flat[inside]] = True\n", "", PERC,
+           "no voxel is marked occupied"),
+    Mutant("M26", "samp/expert/trajectory.py", "steps = max(1, int(np.ceil(np.linalg.norm(traj[k + 1] - traj[k]) / resolution)))",
+           "steps = max(1, int(np.linalg.norm(traj[k + 1] - traj[k]) / resolution) // 2)", EVAL,
+           "sub-steps twice (or more) as far apart as asked"),
+    Mutant("M27", "samp/robot/model.py", "return T if self._base_is_root else self._base_inv @ T",
+           "return T if self._base_is_root else T @ self._base_inv", FK + POINTS, "base frame applied on the wrong side"),
+    Mutant("M28", "samp/data/generation.py", "if shard is None or j.index % num_shards == shard]",
+           "if shard is None or j.index // num_shards == shard]", SHARDS, "shards take contiguous blocks of scenes"),
+    Mutant("M29", "samp/eval/metrics.py", "ok = orientation_error < cfg.orientation_tolerance",
+           "ok = orientation_error <= 15.0", EVAL, "the orientation tolerance ignores the config (always 15 deg)"),
+    Mutant("M31", "samp/policy/losses.py", "weights = torch.exp(-(robot_sdf.detach() - cfg.d_target) / cfg.tau)",
+           "weights = torch.exp(-(robot_sdf.detach() - cfg.d_target) / (2 * cfg.tau))",
+           LOSS + ("tests/robot_sdf/test_robot_sdf_policy_inputs.py",), "collision weights at twice the temperature"),
+    Mutant("M30", "samp/eval/callback.py", 'self.best = state_dict.get("best")', "self.best = None",
+           ("tests/eval/test_eval_callback.py",), "a resumed run forgets its best evaluation score"),
+]
+
+
+def run_tests(tests: tuple[str, ...], timeout: int) -> tuple[bool, float, str]:
+    """(passed, seconds, last output line) of pytest over the existing files of `tests`."""
+    paths = [t for t in tests if (ROOT / t.split("::")[0]).is_file()]
+    if not paths:  # pytest with no path would run the whole suite
+        return True, 0.0, "no test file exists yet: nothing can catch it"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1", "RERUN_ANALYTICS": "0"}
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "--timeout", "240", *paths]
+    start = time.time()
+    try:
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+        tail = (proc.stdout.strip().splitlines() or [""])[-1]
+        return proc.returncode == 0, time.time() - start, tail
+    except subprocess.TimeoutExpired:
+        return False, time.time() - start, "timed out"
+
+
+def plant(m: Mutant) -> tuple[Path, str]:
+    path = ROOT / m.file
+    text = path.read_text()
+    if text.count(m.old) != 1:
+        raise SystemExit(f"{m.id}: the text to replace occurs {text.count(m.old)} times in {m.file}, not once")
+    BACKUP.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(path, BACKUP / (m.file.replace("/", "__") + ".orig"))
+    path.write_text(text.replace(m.old, m.new))
+    return path, text
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", default="", help="comma-separated mutant ids")
+    parser.add_argument("--list", action="store_true")
+    parser.add_argument("--baseline", action="store_true", help="run each mutant's tests on the clean tree only")
+    parser.add_argument("--timeout", type=int, default=600, help="seconds per mutant's test run")
+    parser.add_argument("--json", type=Path, help="write the results here")
+    args = parser.parse_args()
+    chosen = [m for m in MUTANTS if not args.only or m.id in args.only.split(",")]
+    if args.list:
+        for m in chosen:
+            print(f"{m.id}  {m.file:34s} {m.what}  [{' '.join(m.tests)}]")
+        return
+    results = []
+    for m in chosen:
+        if args.baseline:
+            ok, seconds, tail = run_tests(m.tests, args.timeout)
+            print(f"{m.id} clean tree {'passes' if ok else 'FAILS'} ({seconds:.0f} s) {tail}", flush=True)
+            continue
+        path, original = plant(m)
+        try:
+            ok, seconds, tail = run_tests(m.tests, args.timeout)
+        finally:
+            path.write_text(original)
+            (BACKUP / (m.file.replace("/", "__") + ".orig")).unlink(missing_ok=True)
+        verdict = "survived" if ok else "caught"
+        results.append({"id": m.id, "file": m.file, "what": m.what, "verdict": verdict, "seconds": round(seconds)})
+        print(f"{m.id} {verdict:8s} ({seconds:4.0f} s) {m.file}: {m.what} | {tail}", flush=True)
+    if results:
+        caught = sum(r["verdict"] == "caught" for r in results)
+        print(f"caught {caught} of {len(results)}")
+        if args.json:
+            args.json.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

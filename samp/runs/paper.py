@@ -6,7 +6,9 @@ and its newest completed run with an evaluation (`<run>/eval/metrics.json`, writ
 `python -m samp.eval run=RUN_DIR`) fills it, a run evaluated under the current protocol before any older
 one (`samp.runs.protocol`); a row without such a run shows dashes. The expert and straight-line rows read
 the expert and straight blocks of the SAMP runs' evaluations (their trajectories on the same problems),
-else a stand-alone `python -m samp.eval planner=expert` (or `planner=straight`) result under `runs/eval/`.
+else a stand-alone `python -m samp.eval planner=expert` (or `planner=straight`) result under `runs/eval/`;
+the expert variants (`expert_raw`, `ompl_sampling`, samp.eval.planners.EXPERT_VARIANTS) come from
+stand-alone `python -m samp.eval planner=expert_raw` (or `ompl_sampling`) results only.
 
 Cells are the benchmark group's: solution time one problem at a time (B = 1), path length, rates in
 percent with their Wilson 95 % interval, and success on the benchmark's hard subset. A row filled by a
@@ -53,8 +55,11 @@ class PaperTable(NamedTuple):
 SAMP_RUNS = ("samp_n100", "samp_n160")  # whose evaluations hold the expert and the straight line beside SAMP
 TABLE_I = (
     Row("Expert (OMPL)", SAMP_RUNS, planner="expert"),
+    Row("Expert as planned (no simplification or smoothing)", SAMP_RUNS, planner="expert_raw"),
+    Row("OMPL sampling (RRTConnect alone)", SAMP_RUNS, planner="ompl_sampling"),
     Row("Straight line (joint space)", SAMP_RUNS, planner="straight"),
     Row("MPNet", ("mpnet",)),
+    Row("SIMPNet", ("simpnet",)),
     Row("MPiNet", ("mpinet",)),
     Row("SAMP (100 anchors)", ("samp_n100",)),
     Row("SAMP (160 anchors)", ("samp_n160",)),

@@ -168,6 +168,10 @@ STEPS: list[tuple[str, object]] = [
      Compose("experiment=mpinet", "tests/policy/test_baselines_cli.py trains and evaluates it shrunk")),
     ("python -m samp.train experiment=mpnet [trainer=gpu] [datamodule.dataset=NAME@ID]",
      Compose("experiment=mpnet", "tests/policy/test_baselines_cli.py trains and evaluates it shrunk")),
+    ("python -m samp.train experiment=simpnet [trainer=gpu] [datamodule.dataset=NAME@ID]",
+     Compose("experiment=simpnet", "tests/policy/test_baselines_cli.py trains and evaluates it shrunk")),
+    ("python -m samp.train experiment=mpinet model=mpinet_paper trainer=gpu",
+     Compose("experiment=mpinet model=mpinet_paper trainer=gpu", GPU)),
     ("python -m samp.train experiment=mpinet datamodule.dataset=quickstart trainer.max_epochs=5 system.optimizer.lr=1e-3 "
      "system.scheduler.T_0=5 system.scheduler.T_mult=1 datamodule.val_samples=1000",
      Compose("experiment=mpinet datamodule.dataset=quickstart trainer.max_epochs=5 system.optimizer.lr=1e-3 "

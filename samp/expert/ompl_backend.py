@@ -25,9 +25,10 @@ __all__ = ["ANYTIME", "PLANNERS", "OMPLOutcome", "available_planners", "ompl_log
            "seed_ompl"]
 
 # Planners checked to run (and repeat by seed) with the Python validity and motion checks; anytime ones
-# refine until a limit. PRM is left out: it grows its roadmap in a second thread, whose callbacks into
+# refine until a limit. BKPIECE1 grows its trees from the valid-state sampler (the SIMPNet-style planner's
+# learned sampler goes there). PRM is left out: it grows its roadmap in a second thread, whose callbacks into
 # Python deadlock against the solving thread (ompl 2.0.1).
-PLANNERS = ("RRTConnect", "AORRTC", "RRTstar", "RRT", "InformedRRTstar", "BITstar")
+PLANNERS = ("RRTConnect", "AORRTC", "RRTstar", "RRT", "InformedRRTstar", "BITstar", "BKPIECE1")
 ANYTIME = frozenset({"AORRTC", "RRTstar", "InformedRRTstar", "BITstar"})
 FIRST_CHUNK = 8  # states in the first chunk of a motion check; later chunks grow fourfold
 
@@ -156,20 +157,27 @@ def _to_state(space, q: np.ndarray):
 
 
 def plan_once(robot, cfg, valid: Callable[[np.ndarray], np.ndarray], q_start: np.ndarray, q_goal: np.ndarray,
-              seed: int) -> OMPLOutcome:
+              seed: int, sampler: Callable | None = None) -> OMPLOutcome:
     """One seeded attempt: plan with `cfg.planner` from q_start (n,) to q_goal (n,), then simplify/smooth.
 
     valid: (B, n) -> (B,) bool, True for configurations the robot may occupy.
+    sampler: None, or `sampler(si) -> ompl.base.ValidStateSampler`, installed with
+        `SpaceInformation.setValidStateSamplerAllocator` (a learned sampler: samp.policy.baselines.simpnet_planner).
+        Only the planners that draw from the valid-state sampler use it: in ompl 2.0.1's Python bindings
+        BKPIECE1 (`sampleNear`, to grow its trees) and PRM (`sample`); the RRT family draws from the space's
+        `StateSampler`, which the bindings do not let Python replace.
     """
     with ompl_log_level(cfg.log_level):
-        return _plan_once(robot, cfg, valid, q_start, q_goal, seed)
+        return _plan_once(robot, cfg, valid, q_start, q_goal, seed, sampler)
 
 
-def _plan_once(robot, cfg, valid, q_start, q_goal, seed) -> OMPLOutcome:
+def _plan_once(robot, cfg, valid, q_start, q_goal, seed, sampler=None) -> OMPLOutcome:
     ob, og, _ = _ompl()
     cls = planner_class(cfg.planner)
     seed_ompl(seed)
     ss, space, si, mv = _setup(robot, valid, cfg.resolution)
+    if sampler is not None:
+        si.setValidStateSamplerAllocator(sampler)
     # Path length explicitly: AORRTC reports zero-cost paths without an objective (ompl 2.0.1).
     ss.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
     ss.setPlanner(cls(si))

@@ -69,7 +69,8 @@ class ExpertPlanner:
 
     backend = "ompl"
 
-    def __init__(self, robot, scene, cfg: ExpertConfig | dict | str | None = None, world=None):
+    def __init__(self, robot, scene, cfg: ExpertConfig | dict | str | None = None, world=None, sampler=None):
+        """sampler: None, or `sampler(si) -> ompl.base.ValidStateSampler` for every attempt (`plan_once`)."""
         from samp.sim import World
 
         self.cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
@@ -77,7 +78,7 @@ class ExpertPlanner:
             raise ValueError(f"ExpertPlanner is the OMPL backend, but the config asks for backend {self.cfg.backend!r}; "
                              "use samp.expert.make_planner to pick the backend from the config")
         planner_class(self.cfg.planner)  # an unknown name fails here, before any work
-        self.robot, self.scene = robot, scene
+        self.robot, self.scene, self.sampler = robot, scene, sampler
         self._owns_world = world is None
         self.world = World(robot, scene) if world is None else world
 
@@ -164,7 +165,7 @@ class ExpertPlanner:
         stats["direct"] = direct
         if direct:
             return np.stack([q_start, q_goal]), ""
-        out = plan_once(self.robot, self.cfg, self.valid, q_start, q_goal, seed)
+        out = plan_once(self.robot, self.cfg, self.valid, q_start, q_goal, seed, self.sampler)
         stats["solve_time"] += out.solve_time
         stats["simplify_time"] += out.simplify_time
         stats["motion_checks"] += out.motion_checks

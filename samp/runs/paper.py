@@ -5,8 +5,10 @@ Which run fills which row is data (`TABLE_I`, `TABLE_II`): a row names an experi
 and its newest completed run with an evaluation (`<run>/eval/metrics.json`, written after training or by
 `python -m samp.eval run=RUN_DIR`) fills it, a run evaluated under the current protocol before any older
 one (`samp.runs.protocol`); a row without such a run shows dashes. The expert and straight-line rows read
-the expert and straight blocks of the SAMP runs' evaluations (their trajectories on the same problems),
-else a stand-alone `python -m samp.eval planner=expert` (or `planner=straight`) result under `runs/eval/`.
+the expert and straight blocks of the Table I runs' evaluations (their trajectories on the same problems),
+else a stand-alone `python -m samp.eval planner=expert` (or `planner=straight`) result under `runs/eval/`;
+the expert variants (`expert_raw`, `ompl_sampling`, samp.eval.planners.EXPERT_VARIANTS) come from
+stand-alone `python -m samp.eval planner=expert_raw` (or `ompl_sampling`) results only.
 
 Cells are the benchmark group's: solution time one problem at a time (B = 1), path length, rates in
 percent with their Wilson 95 % interval, and success on the benchmark's hard subset. A row filled by a
@@ -50,11 +52,17 @@ class PaperTable(NamedTuple):
     note: str
 
 
-SAMP_RUNS = ("samp_n100", "samp_n160")  # whose evaluations hold the expert and the straight line beside SAMP
+SAMP_RUNS = ("samp_n100", "samp_n160")
+# Every Table I training evaluates the expert and the straight line beside its policy on the same benchmark
+# problems: their rows take the newest such evaluation.
+BESIDE = (*SAMP_RUNS, "mpnet", "simpnet", "mpinet")
 TABLE_I = (
-    Row("Expert (OMPL)", SAMP_RUNS, planner="expert"),
-    Row("Straight line (joint space)", SAMP_RUNS, planner="straight"),
+    Row("Expert (OMPL)", BESIDE, planner="expert"),
+    Row("Expert as planned (no simplification or smoothing)", BESIDE, planner="expert_raw"),
+    Row("OMPL sampling (RRTConnect alone)", BESIDE, planner="ompl_sampling"),
+    Row("Straight line (joint space)", BESIDE, planner="straight"),
     Row("MPNet", ("mpnet",)),
+    Row("SIMPNet", ("simpnet",)),
     Row("MPiNet", ("mpinet",)),
     Row("SAMP (100 anchors)", ("samp_n100",)),
     Row("SAMP (160 anchors)", ("samp_n160",)),

@@ -47,6 +47,7 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     ds = datamodule.ds
     splits = ["val", "train"] if evaluation.problems else []  # 0 problems: the benchmark alone
     cfg = load_eval_config({"problems": evaluation.problems or None, "splits": splits, "benchmark": evaluation.benchmark,
+                            "benchmark_problems": evaluation.get("benchmark_problems"),
                             "overwrite": True, "root": str(Path(ds.path).parents[1])})
     bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
     system.eval()

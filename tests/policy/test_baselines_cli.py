@@ -1,4 +1,4 @@
-"""`python -m samp.train +experiment=mpinet|mpnet` end to end on tiny data: the loss falls, the run is
+"""`python -m samp.train +experiment=mpinet|mpnet|simpnet` end to end on tiny data: the loss falls, the run is
 evaluated into eval/metrics.json like a SAMP run, and `load_planner(run)` gives the baseline back; and the
 expert rows of Table I (`planner=expert_raw|ompl_sampling`) through `python -m samp.eval`."""
 
@@ -24,7 +24,9 @@ SMALL = {"mpinet": ["model.robot_points=48", "model.obstacle_points=64", "model.
                     "model.levels=[{centres:32,radius:0.15,neighbours:8,widths:[16,32]}]", "model.global_widths=[32,64]",
                     "model.config_hidden=[16]", "model.decoder_hidden=[64]"],
          "mpnet": ["model.channels=[4,8]", "model.code=16", "model.hidden=[64,32]", "model.dropout=0.1",
-                   "system.planning.time_limit=3.0"]}
+                   "system.planning.time_limit=3.0"],
+         "simpnet": ["model.channels=[4,8]", "model.cells=2", "model.width=16", "model.heads=2", "model.rounds=1",
+                     "model.dropout=0.1", "system.planning.time_limit=3.0", "system.planning.rollout_steps=10"]}
 
 
 def _train(tmp: Path, root: Path, kind: str) -> Path:
@@ -37,7 +39,7 @@ def _train(tmp: Path, root: Path, kind: str) -> Path:
     return runs[0]
 
 
-@pytest.mark.parametrize("kind", ["mpinet", "mpnet"])
+@pytest.mark.parametrize("kind", ["mpinet", "mpnet", "simpnet"])
 def test_training_run_improves_its_loss_and_is_evaluated(kind, tiny, tmp_path):
     from samp.eval import StepPolicy, TrajectoryPlanner, load_planner
 
@@ -86,7 +88,7 @@ def test_expert_variants_switch_off_post_processing():
     assert not (sampling.simplify or sampling.smooth or sampling.direct) and sampling.planner == "RRTConnect"
 
 
-@pytest.mark.parametrize("kind", ["mpinet", "mpnet"])
+@pytest.mark.parametrize("kind", ["mpinet", "mpnet", "simpnet"])
 def test_default_experiments_compose_and_instantiate(kind):
     from hydra.utils import instantiate
 
@@ -98,3 +100,16 @@ def test_default_experiments_compose_and_instantiate(kind):
     assert system.kind == kind and system.net_cfg.dof == 7
     with pytest.raises(ValueError, match="unknown key"):
         compose_train_config([f"+experiment={kind}", "+system.robot_sdf=robot_sdf_panda"])
+
+
+def test_mpinet_paper_sizes_are_a_named_configuration():
+    from hydra.utils import instantiate
+
+    from samp.train import compose_train_config
+
+    cfg = compose_train_config(["+experiment=mpinet", "model=mpinet_paper"])
+    system = instantiate(cfg.system)
+    c = system.net_cfg
+    assert (c.robot_points, c.obstacle_points, c.target_points) == (2048, 4096, 128) and not c.goal_config
+    assert [(lv.centres, lv.radius, lv.neighbours) for lv in c.levels] == [(512, 0.05, 128), (128, 0.3, 128)]
+    assert system.robot_surface.points.shape == (2048, 3) and system.target_surface.points.shape == (128, 3)

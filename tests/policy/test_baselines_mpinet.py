@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from samp.policy.baselines.mpinet import LABELS, MPiNetConfig, MPiNetNet, even_subset, labelled_cloud
+from samp.policy.baselines.mpinet import LABELS, MPiNetConfig, MPiNetNet, labelled_cloud
 from samp.policy.baselines.mpinet_system import MPiNetSystem, hinge_collision_loss
 
 pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
@@ -44,12 +44,6 @@ def test_labels_mark_robot_obstacle_and_target_points():
     _, labels = labelled_cloud(torch.zeros(2, 3, 3), torch.zeros(2, 4, 3), torch.zeros(2, 1, 3))
     want = torch.tensor([0, 0, 0, 1, 1, 1, 1, 2])
     assert torch.equal(labels[0].argmax(-1), want) and torch.equal(labels.sum(-1), torch.ones(2, 8))
-
-
-def test_even_subset_spreads_and_repeats():
-    pool = torch.arange(10, 20)
-    assert even_subset(pool, 3).tolist() == [10, 14, 19] and even_subset(pool, 10).tolist() == list(range(10, 20))
-    assert len(even_subset(pool, 25)) == 25 and set(even_subset(pool, 25).tolist()) == set(range(10, 20))
 
 
 def test_hinge_collision_loss_matches_hand_computed_values():
@@ -115,3 +109,34 @@ def test_rollout_refuses_grids_of_another_resolution(dm):
     env = EnvBatch(torch.zeros(1, 8, 8, 8), torch.tensor([dm.bounds], dtype=torch.float32), torch.zeros(1, dtype=torch.long))
     with pytest.raises(ValueError, match="reads grids at n_e = 16"):
         policy.reset(env)
+
+
+def test_target_points_are_the_gripper_posed_at_the_goal_end_effector_pose():
+    from samp.policy.baselines.mpinet_points import SurfacePoints, gripper_links
+    from samp.robot import load_robot
+
+    robot = load_robot("panda")
+    assert gripper_links(robot) == ["panda_hand", "panda_leftfinger", "panda_rightfinger"]
+    target = SurfacePoints(robot, gripper_links(robot), 64, seed=1)
+    g = torch.Generator().manual_seed(0)
+    lo, hi = robot.joint_limits.float().T
+    q = lo + (hi - lo) * torch.rand(3, robot.dof, generator=g)
+    points = target(robot.link_poses(q))  # (3, 64, 3)
+    ee = robot.fk(q)[robot.ee_link]  # (3, 4, 4)
+    local = torch.einsum("bji,bkj->bki", ee[:, :3, :3], points - ee[:, None, :3, 3])  # in the end-effector frame
+    assert torch.allclose(local[0], local[1], atol=1e-5) and torch.allclose(local[0], local[2], atol=1e-5), \
+        f"gripper points should be rigid in the end-effector frame; spread {float((local - local[:1]).abs().max()):.2e} m"
+    assert float(local.norm(dim=-1).max()) < 0.2, "gripper points should lie within 20 cm of the end effector"
+
+
+def test_untrained_policy_stands_still_and_goal_config_needs_the_goal(dm):
+    system = _system(dm).eval()
+    b = dm.train_samples[torch.arange(4)]
+    with torch.no_grad():
+        q_next = system.predict(b["q"], b["q_goal"], system.obstacles[b["scene"]])
+    assert torch.allclose(q_next, b["q"], atol=1e-5), "the zero-initialised decoder should predict no step"
+    net = MPiNetNet(MPiNetConfig(**{**SMALL, "goal_config": True}))
+    xyz, labels = labelled_cloud(torch.rand(2, 48, 3), torch.rand(2, 64, 3), torch.rand(2, 16, 3))
+    assert net(torch.zeros(2, 7), xyz, labels, torch.zeros(2, 7)).shape == (2, 7)
+    with pytest.raises(ValueError, match="reads the goal configuration"):
+        net(torch.zeros(2, 7), xyz, labels)

@@ -123,7 +123,7 @@ def test_ddp_trainer_and_sweep_configs_compose():
     get_object(cfg.trainer._target_)
     for name, members in (("anchor_size", [f"samp_n{n}" for n in (40, 70, 100, 130, 160)]),
                           ("loss_ablation", ["samp_n100", "samp_no_coll_loss", "samp_no_pointnet"]),
-                          ("paper_table_1", ["samp_n100", "samp_n160", "mpnet", "mpinet"])):
+                          ("paper_table_1", ["samp_n100", "samp_n160", "mpnet", "simpnet", "mpinet"])):
         params = OmegaConf.load(conf_dir() / "sweep" / f"{name}.yaml").hydra.sweeper.params
         assert params["experiment"].split(",") == members
         for experiment in members:  # every member composes

@@ -1,5 +1,5 @@
 """`baselines` suite: Table I's timing on --baseline-problems problems: per-step inference (B = 1) and solution
-time of SAMP, MPiNet, MPNet (the runs in --runs; untrained default-size networks for step times otherwise) and the
+time of SAMP, MPiNet, MPNet, SIMPNet (the runs in --runs; untrained default-size networks for step times otherwise) and the
 OMPL expert, expert_raw and ompl_sampling rows, as ratios to SAMP.
 
 Adds --runs and --baseline-problems; reads --n-e (added by the eval suite) for the untrained networks' grids."""
@@ -17,13 +17,13 @@ HEADER = ["planner", "step [ms]", "step vs samp", "solution [s]", "solution vs s
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
-    ap.add_argument("--runs", nargs="*", default=[], help="baselines: trained run folders (samp, mpinet, mpnet); "
+    ap.add_argument("--runs", nargs="*", default=[], help="baselines: trained run folders (samp, mpinet, mpnet, simpnet); "
                     "those missing are timed as untrained networks of the default sizes")
     ap.add_argument("--baseline-problems", type=int, default=6, help="baselines: problems each planner solves")
 
 
 def _baseline_planners(args, scenes) -> tuple[dict, set]:
-    """name -> planner for the `baselines` suite: the runs in --runs (samp, mpinet, mpnet by their names),
+    """name -> planner for the `baselines` suite: the runs in --runs (samp, mpinet, mpnet, simpnet by name),
     and untrained networks of the default sizes for those missing, bound to `scenes`' grids (MPiNet derives
     its obstacle points from them when bound); and the names of the untrained ones."""
     from hydra.utils import instantiate
@@ -38,7 +38,7 @@ def _baseline_planners(args, scenes) -> tuple[dict, set]:
     for run in args.runs:
         planner = load_planner(run)
         planners[planner.name] = planner
-    missing = [k for k in ("samp", "mpinet", "mpnet") if k not in planners]
+    missing = [k for k in ("samp", "mpinet", "mpnet", "simpnet") if k not in planners]
     for kind in missing:
         if kind == "samp":  # an untrained robot SDF of the default architecture costs what a trained one does
             system = untrained_policy_system(load_robot(args.robot), args.robot)
@@ -65,17 +65,27 @@ def _time_planners(args, planners: dict, untrained: set, problems: list, scenes:
             solve[name] = statistics.mean(r.solution_time for r in results)
             solved[name] = statistics.mean(r.termination == "reached" for r in results)
             continue
-        if name == "mpnet":  # one network call (B=1); whole plans only with a trained network
-            with torch.no_grad():
-                code = planner.system.net.encode(scenes[0].anchor_grid(planner.n_e)[None].to(planner.system.device))
-                step[name] = timeit(lambda: planner._step(problems[0].q_start, problems[0].q_goal, code),
-                                    torch.device(args.device), min_time=0.05, repeats=3)
-            if name in untrained:
+        if name in ("mpnet", "simpnet"):  # one network call (B=1); MPNet plans only with a trained network
+            step[name] = _network_call(args, planner, problems[0], scenes[0])
+            if name == "mpnet" and name in untrained:
                 continue
         answers = [planner.plan(p) for p in problems]
         solve[name] = statistics.mean(a.solution_time for a in answers)
         solved[name] = statistics.mean(a.trajectory is not None for a in answers)
     return step, solve, solved
+
+
+def _network_call(args, planner, problem, scene) -> float:
+    """Seconds of one call of an MPNet- or SIMPNet-style network at B = 1 (scene encoded beforehand)."""
+    from samp.policy.network import normalize
+
+    system = planner.system
+    dev = system.device
+    u, g = (normalize(torch.as_tensor(q, dtype=torch.float32, device=dev)[None], system.limits)
+            for q in (problem.q_start, problem.q_goal))
+    with torch.no_grad():
+        code = system.net.encode(scene.anchor_grid(planner.n_e)[None].to(dev, torch.float32))
+        return timeit(lambda: system.net(code, u, g), torch.device(args.device), min_time=0.05, repeats=3)
 
 
 def run(args) -> tuple[dict, list[list]]:
@@ -105,5 +115,6 @@ def run(args) -> tuple[dict, list[list]]:
         rows.append([name + (" (untrained)" if name in untrained else ""), *cells, "-" if ok is None else f"{ok:.0%}"])
     if untrained:  # rollouts of an untrained policy end at max_steps or a stall, not at the goal
         print(f"note: {', '.join(sorted(untrained))} untrained (default sizes; pass trained run folders with --runs): "
-              "their step times hold, their solution times and solved shares do not; untrained MPNet does not plan")
+              "their step times hold, their solution times and solved shares do not; untrained MPNet does not plan, "
+              "untrained SIMPNet plans with proposals that stand still")
     return metrics, [HEADER, *rows]

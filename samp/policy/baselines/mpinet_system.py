@@ -1,7 +1,8 @@
 """The MPiNet-style policy's LightningModule and its rollout adapter.
 
 Training step, for a batch of (q_t + noise, q_{t+1}, q_goal, scene) from the same DataModule as SAMP:
-  1. the labelled cloud: robot points at q_t, the scene's cached obstacle points, robot points at q_goal;
+  1. the labelled cloud: arm surface points at q_t, the scene's cached obstacle points, gripper surface
+     points at the goal end-effector pose (the gripper posed by q_goal);
   2. q^_{t+1} = denormalize(MPiNetNet(normalize(q_t), cloud));
   3. L = w_match L_match + w_coll L_hinge, with L_match exactly SAMP's (all M robot points) and
      L_hinge = mean_i max(0, margin - C_i) over the robot's innermost-shell points at q^_{t+1}, C_i the
@@ -13,7 +14,8 @@ from __future__ import annotations
 
 import torch
 
-from samp.policy.baselines.mpinet import MPiNetConfig, MPiNetNet, even_subset, labelled_cloud, surface_points
+from samp.policy.baselines.mpinet import MPiNetConfig, MPiNetNet, labelled_cloud, surface_points
+from samp.policy.baselines.mpinet_points import SurfacePoints, gripper_links
 from samp.names import BATCH_GOAL, BATCH_NEXT, BATCH_Q, BATCH_SCENE
 from samp.policy.base import PolicySystemBase
 from samp.policy.losses import match_loss
@@ -53,8 +55,9 @@ class MPiNetSystem(PolicySystemBase, kind="mpinet"):
         shells = self.robot.point_shells
         inner = (shells == shells.min()).nonzero()[:, 0]  # points 1 mm outside the links: the robot's surface
         self.register_buffer("surface_index", inner, persistent=False)
-        self.register_buffer("robot_index", even_subset(inner, self.net_cfg.robot_points), persistent=False)
-        self.register_buffer("target_index", even_subset(inner, self.net_cfg.target_points), persistent=False)
+        c = self.net_cfg
+        self.robot_surface = SurfacePoints(self.robot, self.robot.point_link_names, c.robot_points, c.robot_seed)
+        self.target_surface = SurfacePoints(self.robot, gripper_links(self.robot), c.target_points, c.robot_seed + 1)
         self.obstacles = None
 
     def _bound(self, binding) -> None:
@@ -68,10 +71,11 @@ class MPiNetSystem(PolicySystemBase, kind="mpinet"):
     def predict(self, q: torch.Tensor, q_goal: torch.Tensor, obstacles: torch.Tensor) -> torch.Tensor:
         """One step: q, q_goal (B, n) radians, obstacles (B, N_o, 3) -> q_next (B, n) radians."""
         with torch.no_grad():
-            robot = self.robot.transform_points(q)[:, self.robot_index]  # (B, N_r, 3)
-            target = self.robot.transform_points(q_goal)[:, self.target_index]  # (B, N_t, 3)
+            robot = self.robot_surface(self.robot.link_poses(q))  # (B, N_r, 3)
+            target = self.target_surface(self.robot.link_poses(q_goal))  # (B, N_t, 3): the gripper at the goal
         xyz, labels = labelled_cloud(robot, obstacles.to(robot.dtype), target)
-        return denormalize(self.net(normalize(q, self.limits), xyz, labels), self.limits)
+        u_g = normalize(q_goal, self.limits)
+        return denormalize(self.net(normalize(q, self.limits), xyz, labels, u_g), self.limits)
 
     def _losses(self, batch: dict) -> dict[str, torch.Tensor]:
         q, q_next, scene = batch[BATCH_Q], batch[BATCH_NEXT], batch[BATCH_SCENE]

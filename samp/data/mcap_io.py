@@ -239,6 +239,7 @@ def _write_timed(w: Writer, channels: list[int], episodes: list[dict], trajector
         traj = np.asarray(next(ok), dtype=np.float64)  # (T, n)
         times = fox.waypoint_times(traj, start)
         poses = record.poses(traj) if record.poses is not None else None
+        quats = fox.quaternions(poses) if poses is not None else None
         if "/ee_path" in viewer:
             path = fox.path_update(poses[record.ee_link][:, :3, 3], start, FRAME, color)
             w.add_message(viewer["/ee_path"], start, path.SerializeToString(), start)
@@ -246,7 +247,7 @@ def _write_timed(w: Writer, channels: list[int], episodes: list[dict], trajector
             stamp = int(stamp)
             w.add_message(waypoints, stamp, _joint_states(record.joint_names, q, stamp), stamp, sequence=t)
             if poses is not None:
-                w.add_message(viewer["/tf"], stamp, fox.frame_transforms(poses, t, stamp, FRAME).SerializeToString(),
+                w.add_message(viewer["/tf"], stamp, fox.frame_transforms(poses, t, stamp, FRAME, quats).SerializeToString(),
                               stamp, sequence=t)
         start = fox.next_start(times)
     return start

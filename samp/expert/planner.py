@@ -177,12 +177,9 @@ class ExpertPlanner:
 
 
 def make_planner(robot, scene, cfg: ExpertConfig | dict | str | None = None, world=None):
-    """The planner of `cfg.backend`: `ExpertPlanner` (ompl) or `CuroboPlanner` (curobo, optional)."""
+    """The planner of `cfg.backend`: `ExpertPlanner` (ompl, the only backend; `load_expert_config` refuses
+    `curobo`, planned work described in `samp.expert.curobo`)."""
     cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
-    if cfg.backend == "curobo":
-        from samp.expert.curobo import CuroboPlanner
-
-        return CuroboPlanner(robot, scene, cfg)
     return ExpertPlanner(robot, scene, cfg, world)
 
 

@@ -49,7 +49,8 @@ class Dataset:
         episodes: every demonstration problem (failures included) as its JSON record plus "scene".
         eval_problems: every evaluation problem in scene order, stored apart from the demonstrations: dicts
             {"scene": int, "index": int (within its scene), "split", "start": (n,) list, "goal": (n,) list
-            or None (no valid goal was found), "goal_pose": (4, 4) nested list or None, "kind", "success":
+            or None (no valid goal was found), "goal_pose": (4, 4) nested list or None, "kind", "detour":
+            bool or None (the straight start-goal line is blocked; None before scene-file format 3), "success":
             bool (the expert solved it), "reason": str (why not), "solution": (W, n) float64 array or None,
             "planning_time": the expert's seconds or None, "stats": the planner's statistics}.
         has_eval_problems: whether the dataset stores evaluation problems (False for legacy datasets).
@@ -120,7 +121,8 @@ def _eval_problems(scene: int, split: str, info: dict, record: SceneRecord) -> l
     out = []
     for e, time_s in zip(record.eval_episodes, times):
         out.append({"scene": scene, "index": e["episode"], "split": split, "start": e["start"], "goal": e["goal"],
-                    "goal_pose": e.get("goal_pose"), "kind": e.get("kind"), "success": bool(e["success"]),
+                    "goal_pose": e.get("goal_pose"), "kind": e.get("kind"), "detour": e.get("detour"),
+                    "success": bool(e["success"]),
                     "reason": e["reason"], "solution": next(solutions) if e["success"] else None,
                     "planning_time": None if e["goal"] is None or time_s is None else float(time_s),
                     "stats": e.get("stats", {})})

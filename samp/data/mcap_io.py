@@ -61,6 +61,7 @@ EPISODE_SCHEMA = {
                    "start": {"type": "array", "items": {"type": "number"}},
                    "goal": {"type": ["array", "null"], "items": {"type": "number"}},
                    "goal_pose": {"type": ["array", "null"], "items": {"type": "array"}},
+                   "detour": {"type": ["boolean", "null"]},  # format 3: the straight start-goal line is blocked
                    "stats": {"type": "object"}},
 }
 FILE_SPLITS = (*SPLITS, *SPLIT_ALIASES)  # "heldout": files written before issue 17 (and their rewrites)

@@ -23,8 +23,6 @@ import json
 import os
 import queue
 import shutil
-import signal
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from multiprocessing import get_context
@@ -35,6 +33,7 @@ import numpy as np
 import torch
 
 from samp.data.mcap_io import SceneRecord, write_scene_file
+from samp.data.lifecycle import die_with_parent
 from samp.data.merging import EVAL_PREFIX, build_manifest, link_or_copy, merge_lock
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
@@ -77,23 +76,10 @@ _ROBOTS: dict[str, object] = {}  # per process: robots are loaded once
 _TICKS = None  # per worker process: queue of finished-problem ticks for the progress bar
 
 
-def _die_with_parent(parent: int) -> None:
-    """In a worker (or the manager) process: die when the generating process dies, even by SIGKILL, and
-    leave Ctrl-C to it (a terminal sends SIGINT to the whole group; the parent ends the workers itself)."""
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        PR_SET_PDEATHSIG = 1
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent:  # the parent died before the line above: nobody is left to serve
-        os._exit(1)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def _init_worker(ticks, parent: int | None = None) -> None:
     global _TICKS
     if parent is not None:
-        _die_with_parent(parent)
+        die_with_parent(parent)
     _TICKS = ticks
     torch.set_num_threads(1)
 
@@ -138,7 +124,8 @@ def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tupl
         if p.q_goal is None:
             result = PlanResult(False, None, p.reason, {"attempts": 0}, p.q_start)
         else:
-            result = planner.plan(p.q_start, p.q_goal, seed=derive_seed(seed, keys[1], i))
+            result = planner.plan(p.q_start, p.q_goal, seed=derive_seed(seed, keys[1], i),
+                                  straight_free=None if p.detour is None else not p.detour)  # checked when sampled
         record, times = _episode(result, i, p, purpose)
         episodes.append(record)
         timings.append(times)
@@ -293,7 +280,7 @@ def _run_pool(spec_dict: dict, todo: list[SceneJob], work: Path, workers: int, b
     Ctrl-C, nothing more is scheduled and the workers are ended at once; finished scene files stay."""
     ctx = get_context("spawn")  # a clean interpreter per worker: no inherited torch or pybullet state
     manager = SyncManager(ctx=ctx)
-    manager.start(_die_with_parent, (os.getpid(),))
+    manager.start(die_with_parent, (os.getpid(),))
     ticks = manager.Queue()
     pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(ticks, os.getpid()))
     try:

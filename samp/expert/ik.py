@@ -1,7 +1,7 @@
 """Batched damped-least-squares inverse kinematics on `Robot.fk`, in torch.
 
 Every target pose gets `seeds` random initial configurations, all solved in parallel for a fixed number
-of iterations: dq = J^T (J J^T + lambda^2 I)^-1 e (Wampler 1986; Buss, "Introduction to inverse
+of iterations (a seed stops once its error is below `SETTLED`, where its steps no longer move it): dq = J^T (J J^T + lambda^2 I)^-1 e (Wampler 1986; Buss, "Introduction to inverse
 kinematics with Jacobian transpose, pseudoinverse and damped least squares methods", 2004), with the
 step capped at `max_step` per joint and q clamped to the joint limits after each step; joints at a
 limit that the step would push beyond it are locked for that step. J is the
@@ -19,6 +19,7 @@ import torch
 
 from samp.expert.config import IKConfig
 
+SETTLED = 1e-12  # a seed whose pose error (6D norm) is below this stops: its later steps would move it less
 RESTART_ERROR = 0.02  # a seed whose pose error (metres + radians, 6D norm) is above this at a restart is redrawn
 
 __all__ = ["IKResult", "geometric_jacobian", "limits_inward", "pose_errors", "rotation_angle", "solve_ik"]
@@ -152,22 +153,29 @@ def solve_ik(robot, targets: torch.Tensor, cfg: IKConfig | None = None, *, gener
     eye = torch.eye(6, dtype=robot.dtype) * cfg.damping ** 2
     with torch.no_grad():
         restart_at = {cfg.iterations * (r + 1) // (cfg.restarts + 1) for r in range(cfg.restarts)}
+        active = torch.arange(K * S)  # seeds still moving: a settled seed's further steps are below SETTLED
         for it in range(cfg.iterations):
-            T, J = geometric_jacobian(robot, q, joints)  # (B, 4, 4), (B, 6, n)
-            e = _error(T, flat_targets)  # (B, 6)
-            if it in restart_at:  # seeds still far off are stuck in a local minimum: draw them afresh
+            fresh = _random_q(robot, (K * S,), generator)[active] if it in restart_at else None  # every draw taken
+            if len(active) == 0:
+                continue
+            qa, goal = q[active], flat_targets[active]
+            T, J = geometric_jacobian(robot, qa, joints)  # (B, 4, 4), (B, 6, n)
+            e = _error(T, goal)  # (B, 6)
+            if fresh is not None:  # seeds still far off are stuck in a local minimum: draw them afresh
                 stuck = e.norm(dim=1) > RESTART_ERROR
-                q = torch.where(stuck[:, None], _random_q(robot, (K * S,), generator), q)
-                T, J = geometric_jacobian(robot, q, joints)
-                e = _error(T, flat_targets)
+                qa = torch.where(stuck[:, None], fresh, qa)
+                T, J = geometric_jacobian(robot, qa, joints)
+                e = _error(T, goal)
+            settled = e.norm(dim=1) < SETTLED
             dq = _dls_step(J, e, eye)  # (B, n)
             # Joints at a limit and pushed beyond it are locked for this step (an active set), so the
             # other joints take up the error instead of the clamp undoing part of every step.
-            locked = ((q <= lo) & (dq < 0)) | ((q >= hi) & (dq > 0))  # (B, n)
+            locked = ((qa <= lo) & (dq < 0)) | ((qa >= hi) & (dq > 0))  # (B, n)
             if bool(locked.any()):
                 dq = _dls_step(J * ~locked[:, None, :], e, eye)
             scale = (cfg.max_step / dq.abs().amax(dim=1, keepdim=True).clamp_min(1e-12)).clamp(max=1.0)
-            q = (q + dq * scale).clamp(lo, hi)
+            q[active] = torch.where(settled[:, None], qa, (qa + dq * scale).clamp(lo, hi))
+            active = active[~settled]
         pos_err, rot_err = pose_errors(geometric_jacobian(robot, q, joints)[0], flat_targets)
     converged = (pos_err <= cfg.position_tolerance) & (rot_err <= cfg.rotation_tolerance)
     return IKResult(q.reshape(K, S, n), pos_err.reshape(K, S), rot_err.reshape(K, S), converged.reshape(K, S))

@@ -237,10 +237,17 @@ def _solve_goals(robot, scene, world, kinds: np.ndarray, cfg: ExpertConfig, gene
 def straight_line_blocked(world, q_start: np.ndarray, q_goal: np.ndarray, cfg: ExpertConfig) -> bool:
     """True when the straight joint-space motion from q_start to q_goal has a state (every `resolution`
     radians) closer than `clearance` to an obstacle or in self-collision: the expert's `direct` check fails."""
+    from samp.expert.ompl_backend import FIRST_CHUNK, _coarse_to_fine
     from samp.expert.trajectory import segment_states
 
-    states = segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]
-    return bool(world.in_collision(states, margin=cfg.clearance).any())
+    states = segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]  # (C, n), the start first
+    order = np.concatenate([_coarse_to_fine(len(states) - 1), [0]]) if len(states) > 1 else np.zeros(1, int)
+    start, size = 0, FIRST_CHUNK  # coarse to fine in growing chunks: a blocked line usually stops early
+    while start < len(order):
+        if world.in_collision(states[order[start:start + size]], margin=cfg.clearance).any():
+            return True
+        start, size = start + size, size * 4
+    return False
 
 
 def _detour_goal(robot, scene, world, start, kind: str, candidates, cfg: ExpertConfig, drng, generator):

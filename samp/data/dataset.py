@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.data.mcap_io import TIMED_FORMAT, SceneRecord, read_scene_file, write_scene_file
+from samp.data.mcap_io import DETOUR_FORMAT, TIMED_FORMAT, SceneRecord, read_scene_file, write_scene_file
 from samp.data.registry import (DatasetError, datasets_root, file_problems, finalize_dataset, read_manifest,
                                 recreate_hint, resolve_ref)
 from samp.names import SPLIT_ALIASES, SPLITS
@@ -189,9 +189,10 @@ def _scene_record(ds: Dataset, i: int) -> tuple[SceneRecord, dict]:
     info = dict(ds.manifest["scenes"][i])
     episodes = [{k: v for k, v in e.items() if k != "scene"} for e in ds.episodes if e["scene"] == i]
     problems = [p for p in ds.eval_problems if p["scene"] == i]
+    detours = int(ds.metadata[i].get("format_version", 1)) >= DETOUR_FORMAT  # records say so from format 3 on
     records = [{"episode": p["index"], "success": p["success"], "reason": p["reason"], "kind": p["kind"],
                 "purpose": "evaluation", "start": p["start"], "goal": p["goal"], "goal_pose": p["goal_pose"],
-                "stats": p["stats"]} for p in problems]
+                "stats": p["stats"], **({"detour": p["detour"]} if detours else {})} for p in problems]
     solutions = [p["solution"] for p in problems if p["success"]]
     n = len(ds.joint_names)
     record = SceneRecord(ds.scenes[i], info["scene_index"], ds.scene_split[i], ds.joint_names, ds.metadata[i],

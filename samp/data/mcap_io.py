@@ -46,11 +46,12 @@ from samp.data import foxglove as fox
 from samp.names import SPLIT_ALIASES, SPLITS
 from samp.scene.model import Box, Cylinder, Scene, Sphere
 
-__all__ = ["EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "read_scene_file", "write_scene_file"]
+__all__ = ["DETOUR_FORMAT", "EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "read_scene_file", "write_scene_file"]
 
 FRAME = "base"
 STEP_NS = 1_000_000  # format 1: log_time of waypoint t of episode e is e * STEP_NS + t
 TIMED_FORMAT = 2  # from this scene-file format on: realistic timing, /tf, /robot, /ee_path, embedded meshes
+DETOUR_FORMAT = 3  # from this format on, every episode record says whether its straight start-goal line is blocked
 PATH_COLORS = {"/trajectory": (0.2, 0.5, 0.95, 1.0), "/eval/trajectory": (0.95, 0.6, 0.1, 1.0)}
 EPISODE_SCHEMA = {
     "type": "object", "title": "samp.Episode",

@@ -164,6 +164,7 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
                 tick, where, spec.detour_share, stages)
         sidecar = {"scene_index": job.index, "name": scene.name, "generator": job.generator, "seed": job.seed,
                    "split": job.split, "content_hash": scene.content_hash(), "file": job.file,
+                   "robot_asset_hash": robot.asset_hash,  # so the merge need not load the robot
                    "episodes": len(episodes), "trajectories": len(trajectories),
                    "eval_problems": len(eval_episodes), "eval_solved": len(solutions),
                    "detours": sum(e["detour"] is True for e in episodes),
@@ -356,8 +357,9 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
     try:
         for j in jobs:
             link_or_copy(work / j.file, tmp / j.file)
-        manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, _asset_hash(spec.robot), sidecars,
-                                  parents=[])
+        hashes = {s.get("robot_asset_hash") for s in sidecars}
+        asset = next(iter(hashes)) if len(hashes) == 1 and None not in hashes else _asset_hash(spec.robot)
+        manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, asset, sidecars, parents=[])
         manifest.update(code_version=code_version(), versions=package_versions())
         dest = finalize_dataset(tmp, spec.name, manifest, root)
     except BaseException:

@@ -254,7 +254,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     plans = sum(j.trajectories + j.eval_problems for j in todo)  # demonstrations and evaluation problems
     bar = Progress(plans, label, unit="plan", enabled=progress)  # a bar on a terminal, else a line now and then
     spec_dict = spec.resolved()
-    spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__}
+    spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__ if k in spec_dict}
     try:
         if workers == 1 or len(todo) <= 1:
             for job in todo:

@@ -85,6 +85,8 @@ class DatasetSpec:
         out["scene_namespace"] = self.namespace  # explicit, so leaving it out and naming it hash the same
         out["expert_config"] = asdict(self.expert_config())
         out["generator_configs"] = {g: self.generator_config(g) for g in self.generators}
+        if not out["detour_share"]:  # the default: left out, so specs from before the key keep their hash (and
+            del out["detour_share"]  # their datasets, e.g. the standing benchmark, are found, not regenerated)
         return out
 
     def config_hash(self) -> str:

@@ -87,3 +87,14 @@ def test_inspect_reports_the_detour_share(detours, capsys):
     demos = sum(e["goal"] is not None for e in open_dataset(folder).episodes)
     assert f"({counts['detours']}/{demos} with a goal)" in out
     assert "the spec asks for at least 50%" in out
+
+
+def test_a_spec_without_detours_keeps_its_config_hash():
+    """detour_share 0 (the default) is left out of the resolved spec, so a spec from before the key keeps its
+    hash and its datasets (the standing benchmark's among them) are found instead of generated again."""
+    from samp.data.spec import load_spec
+
+    plain = {k: v for k, v in SPEC.items() if k != "detour_share"}
+    assert "detour_share" not in load_spec(plain).resolved()
+    assert load_spec(plain).config_hash() == load_spec({**plain, "detour_share": 0.0}).config_hash()
+    assert load_spec(plain).config_hash() != load_spec(SPEC).config_hash()

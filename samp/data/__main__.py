@@ -181,6 +181,7 @@ def _inspect(args: list[str]) -> None:
               f"{solved:>4}/{len(evals):<4} {ee:10.3f} {np.mean(times) if times else 0:8.2f}")
     print("expert success rate per generator: " +
           ", ".join(f"{g} {a / max(b, 1):.0%} ({a}/{b})" for g, (a, b) in by_gen.items()))
+    print(_detour_line(ds.manifest["config"].get("detour_share"), ds.episodes, ds.eval_problems))
     for what, records in (("demonstration", ds.episodes), ("evaluation problem", ds.eval_problems)):
         reasons: dict[str, int] = {}
         for e in records:
@@ -198,6 +199,19 @@ def _inspect(args: list[str]) -> None:
         schema = summary.schemas.get(ch.schema_id)
         print(f"  {ch.topic:<17} {ch.message_encoding:<9} {schema.name if schema else '-':<22} "
               f"{stats.channel_message_counts.get(cid, 0):>6} messages")
+
+
+def _detour_line(wanted, episodes: list[dict], eval_problems: list[dict]) -> str:
+    """The share of problems whose straight start-goal line is blocked (recorded per problem from format 3)."""
+    parts = []
+    for what, records in (("demonstrations", episodes), ("evaluation problems", eval_problems)):
+        known = [e["detour"] for e in records if e.get("detour") is not None]
+        if records and not known:
+            return "detour share: not recorded (scene files before format 3)"
+        if known:
+            parts.append(f"{sum(known) / len(known):.0%} of {what} ({sum(known)}/{len(known)} with a goal)")
+    return (f"detour share (straight start-goal line blocked): {', '.join(parts) or 'no problems'}; the spec asks "
+            f"for at least {float(wanted or 0.0):.0%}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.data.mcap_io import TIMED_FORMAT, SceneRecord, read_scene_file, write_scene_file
+from samp.data.mcap_io import DETOUR_FORMAT, TIMED_FORMAT, SceneRecord, read_scene_file, write_scene_file
 from samp.data.registry import (DatasetError, datasets_root, file_problems, finalize_dataset, read_manifest,
                                 recreate_hint, resolve_ref)
 from samp.names import SPLIT_ALIASES, SPLITS
@@ -49,7 +49,8 @@ class Dataset:
         episodes: every demonstration problem (failures included) as its JSON record plus "scene".
         eval_problems: every evaluation problem in scene order, stored apart from the demonstrations: dicts
             {"scene": int, "index": int (within its scene), "split", "start": (n,) list, "goal": (n,) list
-            or None (no valid goal was found), "goal_pose": (4, 4) nested list or None, "kind", "success":
+            or None (no valid goal was found), "goal_pose": (4, 4) nested list or None, "kind", "detour":
+            bool or None (the straight start-goal line is blocked; None before scene-file format 3), "success":
             bool (the expert solved it), "reason": str (why not), "solution": (W, n) float64 array or None,
             "planning_time": the expert's seconds or None, "stats": the planner's statistics}.
         has_eval_problems: whether the dataset stores evaluation problems (False for legacy datasets).
@@ -120,7 +121,8 @@ def _eval_problems(scene: int, split: str, info: dict, record: SceneRecord) -> l
     out = []
     for e, time_s in zip(record.eval_episodes, times):
         out.append({"scene": scene, "index": e["episode"], "split": split, "start": e["start"], "goal": e["goal"],
-                    "goal_pose": e.get("goal_pose"), "kind": e.get("kind"), "success": bool(e["success"]),
+                    "goal_pose": e.get("goal_pose"), "kind": e.get("kind"), "detour": e.get("detour"),
+                    "success": bool(e["success"]),
                     "reason": e["reason"], "solution": next(solutions) if e["success"] else None,
                     "planning_time": None if e["goal"] is None or time_s is None else float(time_s),
                     "stats": e.get("stats", {})})
@@ -187,9 +189,10 @@ def _scene_record(ds: Dataset, i: int) -> tuple[SceneRecord, dict]:
     info = dict(ds.manifest["scenes"][i])
     episodes = [{k: v for k, v in e.items() if k != "scene"} for e in ds.episodes if e["scene"] == i]
     problems = [p for p in ds.eval_problems if p["scene"] == i]
+    detours = int(ds.metadata[i].get("format_version", 1)) >= DETOUR_FORMAT  # records say so from format 3 on
     records = [{"episode": p["index"], "success": p["success"], "reason": p["reason"], "kind": p["kind"],
                 "purpose": "evaluation", "start": p["start"], "goal": p["goal"], "goal_pose": p["goal_pose"],
-                "stats": p["stats"]} for p in problems]
+                "stats": p["stats"], **({"detour": p["detour"]} if detours else {})} for p in problems]
     solutions = [p["solution"] for p in problems if p["success"]]
     n = len(ds.joint_names)
     record = SceneRecord(ds.scenes[i], info["scene_index"], ds.scene_split[i], ds.joint_names, ds.metadata[i],

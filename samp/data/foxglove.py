@@ -25,8 +25,8 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-__all__ = ["GAP", "JOINT_SPEED", "MIN_DURATION", "embed_mesh", "frame_transforms", "path_update", "robot_update",
-           "waypoint_times"]
+__all__ = ["GAP", "JOINT_SPEED", "MIN_DURATION", "embed_mesh", "frame_transforms", "path_update", "quaternions",
+           "robot_update", "waypoint_times"]
 
 JOINT_SPEED = 1.0  # rad/s along the joint-space path: a calm speed for a 7-joint arm (the Panda allows ~2)
 MIN_DURATION = 0.5  # s: even a tiny motion plays visibly
@@ -50,17 +50,29 @@ def next_start(times: np.ndarray) -> int:
     return int(times[-1]) + int(GAP * NS)
 
 
-def frame_transforms(poses: dict[str, np.ndarray], j: int, stamp_ns: int, parent: str) -> FrameTransforms:
-    """Waypoint j's link poses (link -> (T, 4, 4)) as `parent` -> link transforms."""
+def quaternions(poses: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """link -> (T, 4, 4) poses -> link -> (T, 4) quaternions x, y, z, w, in one scipy call (per-call cost
+    dominates a waypoint's few links; the batched conversion gives the same numbers)."""
     from scipy.spatial.transform import Rotation
 
+    if not poses:
+        return {}
+    names = list(poses)
+    quat = Rotation.from_matrix(np.concatenate([poses[n][:, :3, :3] for n in names])).as_quat()
+    return dict(zip(names, np.split(quat, len(names))))
+
+
+def frame_transforms(poses: dict[str, np.ndarray], j: int, stamp_ns: int, parent: str,
+                     quats: dict[str, np.ndarray] | None = None) -> FrameTransforms:
+    """Waypoint j's link poses (link -> (T, 4, 4)) as `parent` -> link transforms; `quats`: their
+    `quaternions`, when the caller has them for all waypoints."""
+    quats = quats if quats is not None else quaternions(poses)
     msg = FrameTransforms()
     for name, T in poses.items():
         tf = msg.transforms.add(parent_frame_id=parent, child_frame_id=name)
         tf.timestamp.FromNanoseconds(int(stamp_ns))
-        tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in T[j, :3, 3])
-        x, y, z, w = Rotation.from_matrix(T[j, :3, :3]).as_quat()
-        tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = float(x), float(y), float(z), float(w)
+        tf.translation.x, tf.translation.y, tf.translation.z = T[j, :3, 3].tolist()
+        tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = quats[name][j].tolist()
     return msg
 
 

@@ -23,8 +23,6 @@ import json
 import os
 import queue
 import shutil
-import signal
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from multiprocessing import get_context
@@ -35,6 +33,7 @@ import numpy as np
 import torch
 
 from samp.data.mcap_io import SceneRecord, write_scene_file
+from samp.data.lifecycle import die_with_parent
 from samp.data.merging import EVAL_PREFIX, build_manifest, link_or_copy, merge_lock
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
@@ -77,23 +76,10 @@ _ROBOTS: dict[str, object] = {}  # per process: robots are loaded once
 _TICKS = None  # per worker process: queue of finished-problem ticks for the progress bar
 
 
-def _die_with_parent(parent: int) -> None:
-    """In a worker (or the manager) process: die when the generating process dies, even by SIGKILL, and
-    leave Ctrl-C to it (a terminal sends SIGINT to the whole group; the parent ends the workers itself)."""
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        PR_SET_PDEATHSIG = 1
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent:  # the parent died before the line above: nobody is left to serve
-        os._exit(1)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def _init_worker(ticks, parent: int | None = None) -> None:
     global _TICKS
     if parent is not None:
-        _die_with_parent(parent)
+        die_with_parent(parent)
     _TICKS = ticks
     torch.set_num_threads(1)
 
@@ -106,18 +92,18 @@ def _robot(name: str):
     return _ROBOTS[name]
 
 
-def _episode(result, index: int, kind: str, goal_pose, purpose: str) -> tuple[dict, dict]:
+def _episode(result, index: int, problem, purpose: str) -> tuple[dict, dict]:
     """PlanResult -> (episode record for the MCAP file, wall-clock times for the sidecar)."""
     as_list = lambda a: None if a is None else np.asarray(a, dtype=np.float64).tolist()  # noqa: E731
     stats = {k: v for k, v in result.stats.items() if k not in TIMING_KEYS}
-    record = {"episode": index, "success": bool(result.success), "reason": result.reason, "kind": kind,
+    record = {"episode": index, "success": bool(result.success), "reason": result.reason, "kind": problem.kind,
               "purpose": purpose, "start": as_list(result.q_start), "goal": as_list(result.q_goal),
-              "goal_pose": as_list(goal_pose), "stats": stats}
+              "goal_pose": as_list(problem.goal_pose), "detour": problem.detour, "stats": stats}
     return record, {k: float(result.stats.get(k, 0.0)) for k in TIMING_KEYS}
 
 
 def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tuple[int, int], purpose: str, tick,
-                   where: str) -> tuple[list[dict], list[dict], list[np.ndarray]]:
+                   where: str, detour_share: float, stages: dict) -> tuple[list[dict], list[dict], list[np.ndarray]]:
     """Sample `count` problems from the seed stream keys[0] and plan each (seed stream keys[1]) ->
     (episode records, wall-clock times, (T, n) trajectories of the solved ones)."""
     from samp.expert.planner import PlanResult, derive_seed
@@ -125,19 +111,22 @@ def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tupl
 
     if count == 0:
         return [], [], []
+    t0 = time.perf_counter()
     try:
         problems = sample_problems(robot, scene, count, derive_seed(seed, keys[0]), cfg,
-                                   world=getattr(planner, "world", None))
+                                   world=getattr(planner, "world", None), detour_share=detour_share)
     except ValueError as err:
         raise GenerationError(f"{where}: the scene cannot host valid planning problems: {err}. Change the "
                               "spec's generators or generator_overrides, or lower the expert's clearance") from None
+    stages["problems"] += time.perf_counter() - t0
     episodes, timings, trajectories = [], [], []
     for i, p in enumerate(problems):
         if p.q_goal is None:
             result = PlanResult(False, None, p.reason, {"attempts": 0}, p.q_start)
         else:
-            result = planner.plan(p.q_start, p.q_goal, seed=derive_seed(seed, keys[1], i))
-        record, times = _episode(result, i, p.kind, p.goal_pose, purpose)
+            result = planner.plan(p.q_start, p.q_goal, seed=derive_seed(seed, keys[1], i),
+                                  straight_free=None if p.detour is None else not p.detour)  # checked when sampled
+        record, times = _episode(result, i, p, purpose)
         episodes.append(record)
         timings.append(times)
         if result.success:
@@ -163,27 +152,35 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
             scene = scene_from_config(spec.generator_config(job.generator), job.seed)
         except ValueError as err:
             raise GenerationError(f"{where}: {err}") from None
+        t0 = time.perf_counter()
         grids = {n: scene.anchor_grid(n, cache=False) for n in spec.resolutions}
+        stages = {"grids": time.perf_counter() - t0, "problems": 0.0}  # wall clock per stage: for the bench
         with make_planner(robot, scene, cfg) as planner:  # the same expert, config and post-processing for both
             episodes, timings, trajectories = _plan_problems(
                 robot, scene, planner, cfg, job.trajectories, job.seed, (DEMO_PROBLEMS, DEMO_PLANS), "demonstration",
-                tick, where)
+                tick, where, spec.detour_share, stages)
             eval_episodes, eval_timings, solutions = _plan_problems(
                 robot, scene, planner, cfg, job.eval_problems, job.seed, (EVAL_PROBLEMS, EVAL_PLANS), "evaluation",
-                tick, where)
+                tick, where, spec.detour_share, stages)
         sidecar = {"scene_index": job.index, "name": scene.name, "generator": job.generator, "seed": job.seed,
                    "split": job.split, "content_hash": scene.content_hash(), "file": job.file,
+                   "robot_asset_hash": robot.asset_hash,  # so the merge need not load the robot
                    "episodes": len(episodes), "trajectories": len(trajectories),
                    "eval_problems": len(eval_episodes), "eval_solved": len(solutions),
+                   "detours": sum(e["detour"] is True for e in episodes),
+                   "eval_detours": sum(e["detour"] is True for e in eval_episodes), "stage_time": stages,
                    **{k: [t[k] for t in timings] for k in TIMING_KEYS},
                    **{EVAL_PREFIX + k: [t[k] for t in eval_timings] for k in TIMING_KEYS}}
         # The sidecar first: a scene counts as done when its MCAP file exists (renamed into place last).
         _write_json(out / (job.file + SIDECAR), sidecar)
+        t0 = time.perf_counter()
         write_scene_file(out / job.file, SceneRecord(
             scene, job.index, job.split, list(robot.joint_names), _file_metadata(spec, job, robot.asset_hash),
             grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
             eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
             poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
+        stages["write"] = time.perf_counter() - t0
+        _write_json(out / (job.file + SIDECAR), sidecar)  # again, with the writing time
         return sidecar
     finally:
         torch.set_num_threads(threads)
@@ -257,7 +254,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     plans = sum(j.trajectories + j.eval_problems for j in todo)  # demonstrations and evaluation problems
     bar = Progress(plans, label, unit="plan", enabled=progress)  # a bar on a terminal, else a line now and then
     spec_dict = spec.resolved()
-    spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__}
+    spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__ if k in spec_dict}
     try:
         if workers == 1 or len(todo) <= 1:
             for job in todo:
@@ -284,7 +281,7 @@ def _run_pool(spec_dict: dict, todo: list[SceneJob], work: Path, workers: int, b
     Ctrl-C, nothing more is scheduled and the workers are ended at once; finished scene files stay."""
     ctx = get_context("spawn")  # a clean interpreter per worker: no inherited torch or pybullet state
     manager = SyncManager(ctx=ctx)
-    manager.start(_die_with_parent, (os.getpid(),))
+    manager.start(die_with_parent, (os.getpid(),))
     ticks = manager.Queue()
     pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(ticks, os.getpid()))
     try:
@@ -360,8 +357,9 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
     try:
         for j in jobs:
             link_or_copy(work / j.file, tmp / j.file)
-        manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, _asset_hash(spec.robot), sidecars,
-                                  parents=[])
+        hashes = {s.get("robot_asset_hash") for s in sidecars}
+        asset = next(iter(hashes)) if len(hashes) == 1 and None not in hashes else _asset_hash(spec.robot)
+        manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, asset, sidecars, parents=[])
         manifest.update(code_version=code_version(), versions=package_versions())
         dest = finalize_dataset(tmp, spec.name, manifest, root)
     except BaseException:

@@ -46,11 +46,12 @@ from samp.data import foxglove as fox
 from samp.names import SPLIT_ALIASES, SPLITS
 from samp.scene.model import Box, Cylinder, Scene, Sphere
 
-__all__ = ["EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "read_scene_file", "write_scene_file"]
+__all__ = ["DETOUR_FORMAT", "EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "read_scene_file", "write_scene_file"]
 
 FRAME = "base"
 STEP_NS = 1_000_000  # format 1: log_time of waypoint t of episode e is e * STEP_NS + t
 TIMED_FORMAT = 2  # from this scene-file format on: realistic timing, /tf, /robot, /ee_path, embedded meshes
+DETOUR_FORMAT = 3  # from this format on, every episode record says whether its straight start-goal line is blocked
 PATH_COLORS = {"/trajectory": (0.2, 0.5, 0.95, 1.0), "/eval/trajectory": (0.95, 0.6, 0.1, 1.0)}
 EPISODE_SCHEMA = {
     "type": "object", "title": "samp.Episode",
@@ -61,6 +62,7 @@ EPISODE_SCHEMA = {
                    "start": {"type": "array", "items": {"type": "number"}},
                    "goal": {"type": ["array", "null"], "items": {"type": "number"}},
                    "goal_pose": {"type": ["array", "null"], "items": {"type": "array"}},
+                   "detour": {"type": ["boolean", "null"]},  # format 3: the straight start-goal line is blocked
                    "stats": {"type": "object"}},
 }
 FILE_SPLITS = (*SPLITS, *SPLIT_ALIASES)  # "heldout": files written before issue 17 (and their rewrites)
@@ -239,6 +241,7 @@ def _write_timed(w: Writer, channels: list[int], episodes: list[dict], trajector
         traj = np.asarray(next(ok), dtype=np.float64)  # (T, n)
         times = fox.waypoint_times(traj, start)
         poses = record.poses(traj) if record.poses is not None else None
+        quats = fox.quaternions(poses) if poses is not None else None
         if "/ee_path" in viewer:
             path = fox.path_update(poses[record.ee_link][:, :3, 3], start, FRAME, color)
             w.add_message(viewer["/ee_path"], start, path.SerializeToString(), start)
@@ -246,7 +249,7 @@ def _write_timed(w: Writer, channels: list[int], episodes: list[dict], trajector
             stamp = int(stamp)
             w.add_message(waypoints, stamp, _joint_states(record.joint_names, q, stamp), stamp, sequence=t)
             if poses is not None:
-                w.add_message(viewer["/tf"], stamp, fox.frame_transforms(poses, t, stamp, FRAME).SerializeToString(),
+                w.add_message(viewer["/tf"], stamp, fox.frame_transforms(poses, t, stamp, FRAME, quats).SerializeToString(),
                               stamp, sequence=t)
         start = fox.next_start(times)
     return start

@@ -64,6 +64,8 @@ def build_manifest(config: dict, config_hash: str, seed: int, asset_hash: str, s
               "eval_problems": sum(s.get("eval_problems", 0) for s in scenes),
               "eval_solved": sum(s.get("eval_solved", 0) for s in scenes)}
     counts["failures"] = counts["episodes"] - counts["trajectories"]
+    # problems whose straight joint-space line is blocked (the expert plans a detour); older sidecars lack them
+    counts.update(detours=sum(s.get("detours", 0) for s in scenes), eval_detours=sum(s.get("eval_detours", 0) for s in scenes))
     counts["eval_failures"] = counts["eval_problems"] - counts["eval_solved"]
     return {"config": config, "config_hash": config_hash, "seed": seed,
             "robot": {"name": config["robot"], "asset_hash": asset_hash}, "parents": parents, "counts": counts,

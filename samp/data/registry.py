@@ -32,7 +32,9 @@ READABLE_VERSIONS = (1, 2)
 # The `format_version` inside each scene file's metadata. 2: waypoints timed as the robot would move, /tf,
 # /robot and /ee_path for viewers, embedded mesh obstacles, voxel grids centred on the anchors (new ids);
 # files of format 1 are read as before (samp/data/mcap_io.py).
-SCENE_FILE_VERSION = 2
+# 3: episodes record `detour` (the straight line from start to goal is blocked), and the expert's numerics
+# changed (float64 numpy FK in the collision checks and the IK), so the same spec gives other bytes (new ids).
+SCENE_FILE_VERSION = 3
 MANIFEST = "manifest.json"
 MANIFEST_HASH = "manifest_sha256"
 ID_LENGTH = 12

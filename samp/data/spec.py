@@ -3,7 +3,8 @@
 A spec names a robot, how many training, validation and test scenes, which scene generators (mixed
 round-robin over the scenes in the order listed), the expert demonstrations per
 training and validation scene, the evaluation problems per scene, the anchor-grid resolutions to store,
-the expert config and a seed. Everything a dataset contains follows from the resolved spec: scenes are
+the expert config, the share of problems drawn to need a detour (`detour_share`, see
+`samp.expert.problems.sample_problems`) and a seed. Everything a dataset contains follows from the resolved spec: scenes are
 ordered train, then val, then test; scene i uses generator `generators[i % len(generators)]` and seed
 `derive_seed(seed, namespace_key(scene_namespace), i)`, so two specs share scenes only when they share
 seed and namespace (by default the spec's name). Test scenes get no demonstrations: nothing of them can
@@ -53,6 +54,7 @@ class DatasetSpec:
     test_scenes: int = 0  # scenes with evaluation problems only, for the final evaluation
     trajectories_per_scene: int = 24  # expert demonstrations per train and val scene
     eval_problems_per_scene: int = 8  # evaluation problems per scene (every split), stored apart
+    detour_share: float = 0.0  # share of problems (both kinds) drawn so that the straight joint-space line is blocked
     generators: list[str] = field(default_factory=lambda: ["tabletop"])  # mixed round-robin over scenes
     generator_overrides: dict[str, Any] = field(default_factory=dict)  # generator -> {parameter: value}
     resolutions: list[int] = field(default_factory=lambda: [40])  # anchor grids stored per scene (n_e)
@@ -83,6 +85,8 @@ class DatasetSpec:
         out["scene_namespace"] = self.namespace  # explicit, so leaving it out and naming it hash the same
         out["expert_config"] = asdict(self.expert_config())
         out["generator_configs"] = {g: self.generator_config(g) for g in self.generators}
+        if not out["detour_share"]:  # the default: left out, so specs from before the key keep their hash (and
+            del out["detour_share"]  # their datasets, e.g. the standing benchmark, are found, not regenerated)
         return out
 
     def config_hash(self) -> str:
@@ -179,6 +183,7 @@ def _check(spec: DatasetSpec) -> None:
     require(spec.eval_problems_per_scene >= (1 if spec.test_scenes else 0),
             f"eval_problems_per_scene must be >= 0, and >= 1 when the spec has test scenes (they hold nothing else), "
             f"got {spec.eval_problems_per_scene}")
+    require(0.0 <= spec.detour_share <= 1.0, f"detour_share must be in [0, 1], got {spec.detour_share}")
     require(len(spec.generators) >= 1, "generators must list at least one scene generator")
     unknown = sorted(set(spec.generators) - set(available_generators()))
     require(not unknown, f"unknown scene generators {unknown}; available: {available_generators()}")

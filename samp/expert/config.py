@@ -59,7 +59,7 @@ class ProblemConfig:
 class ExpertConfig:
     """Expert planner settings (`samp.expert.planner.ExpertPlanner`)."""
 
-    backend: str = "ompl"  # ompl | curobo (optional GPU backend)
+    backend: str = "ompl"  # ompl (the only backend; curobo is planned work, samp.expert.curobo)
     planner: str = "RRTConnect"  # an OMPL geometric planner; see samp.expert.ompl_backend.PLANNERS
     time_limit: float = 5.0  # per attempt
     attempts: int = 3  # a failed attempt (timeout, dense check) is retried with the next seed
@@ -119,7 +119,11 @@ def _require(ok: bool, key: str, expected: str, got) -> None:
 
 
 def _check(cfg: ExpertConfig) -> None:
-    _require(cfg.backend in ("ompl", "curobo"), "backend", "'ompl' or 'curobo'", cfg.backend)
+    if cfg.backend == "curobo":
+        from samp.expert.curobo import NOT_IMPLEMENTED
+
+        raise ValueError(f"expert config: backend 'curobo' {NOT_IMPLEMENTED}")
+    _require(cfg.backend == "ompl", "backend", "'ompl'", cfg.backend)
     _require(cfg.log_level in LOG_LEVELS, "log_level", " | ".join(LOG_LEVELS), cfg.log_level)
     _require(cfg.time_limit > 0, "time_limit", "positive (seconds)", cfg.time_limit)
     _require(cfg.attempts >= 1, "attempts", ">= 1", cfg.attempts)

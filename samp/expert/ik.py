@@ -1,7 +1,7 @@
 """Batched damped-least-squares inverse kinematics on `Robot.fk`, in torch.
 
 Every target pose gets `seeds` random initial configurations, all solved in parallel for a fixed number
-of iterations: dq = J^T (J J^T + lambda^2 I)^-1 e (Wampler 1986; Buss, "Introduction to inverse
+of iterations (a seed stops once its error is below `SETTLED`, where its steps no longer move it): dq = J^T (J J^T + lambda^2 I)^-1 e (Wampler 1986; Buss, "Introduction to inverse
 kinematics with Jacobian transpose, pseudoinverse and damped least squares methods", 2004), with the
 step capped at `max_step` per joint and q clamped to the joint limits after each step; joints at a
 limit that the step would push beyond it are locked for that step. J is the
@@ -14,10 +14,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from samp.expert.config import IKConfig
 
+SETTLED = 1e-12  # a seed whose pose error (6D norm) is below this stops: its later steps would move it less
 RESTART_ERROR = 0.02  # a seed whose pose error (metres + radians, 6D norm) is above this at a restart is redrawn
 
 __all__ = ["IKResult", "geometric_jacobian", "limits_inward", "pose_errors", "rotation_angle", "solve_ik"]
@@ -61,15 +63,37 @@ def geometric_jacobian(robot, q: torch.Tensor, joints=None) -> tuple[torch.Tenso
     """q (B, n) -> end-effector pose (B, 4, 4) and geometric Jacobian (B, 6, n) in the base frame,
     rows (linear velocity, angular velocity)."""
     children, axes, revolute = joints or _joint_axes(robot)
-    frames = robot.fk(q)
-    T_ee = frames[robot.ee_link]
-    T_j = torch.stack([frames[c] for c in children], dim=1)  # (B, n, 4, 4) joint frames (= child link frames)
+    serial = robot.frames_fk((*children, robot.ee_link))  # a serial arm: the frames in a few products
+    if serial is not None and q.device.type == "cpu":
+        robot._check_q(q)  # numpy's batched 4x4 products are several times faster than torch's on a CPU
+        return _jacobian_numpy(serial, q, axes, revolute)
+    if serial is not None:
+        robot._check_q(q)
+        frames = serial(q)  # (B, n + 1, 4, 4)
+        T_ee, T_j = frames[:, -1], frames[:, :-1]
+    else:
+        frames = robot.fk(q)
+        T_ee = frames[robot.ee_link]
+        T_j = torch.stack([frames[c] for c in children], dim=1)  # (B, n, 4, 4) joint frames (= child link frames)
     axis = torch.einsum("bnij,nj->bni", T_j[..., :3, :3], axes.to(q))  # (B, n, 3) in the base frame
     lever = T_ee[:, None, :3, 3] - T_j[..., :3, 3]  # (B, n, 3)
     rev = revolute.to(q.device)[None, :, None]
     linear = torch.where(rev, torch.cross(axis, lever, dim=-1), axis)
     angular = torch.where(rev, axis, torch.zeros_like(axis))
     return T_ee, torch.cat([linear, angular], dim=-1).transpose(1, 2)  # (B, 6, n)
+
+
+def _jacobian_numpy(serial, q: torch.Tensor, axes: torch.Tensor, revolute: torch.Tensor):
+    """`geometric_jacobian` of a serial arm on the CPU, in float64 numpy, returned in q's dtype."""
+    frames = serial.numpy(q.detach().double().numpy())  # (B, n + 1, 4, 4)
+    T_ee, T_j = frames[:, -1], frames[:, :-1]
+    axis = (T_j[..., :3, :3] @ axes.double().numpy()[:, :, None])[..., 0]  # (B, n, 3) in the base frame
+    lever = T_ee[:, None, :3, 3] - T_j[..., :3, 3]  # (B, n, 3)
+    rev = revolute.numpy()[None, :, None]
+    linear = np.where(rev, np.cross(axis, lever), axis)
+    angular = np.where(rev, axis, 0.0)
+    J = np.concatenate([linear, angular], axis=-1).transpose(0, 2, 1)  # (B, 6, n)
+    return torch.from_numpy(T_ee).to(q.dtype), torch.from_numpy(np.ascontiguousarray(J)).to(q.dtype)
 
 
 def _error(T: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -129,22 +153,29 @@ def solve_ik(robot, targets: torch.Tensor, cfg: IKConfig | None = None, *, gener
     eye = torch.eye(6, dtype=robot.dtype) * cfg.damping ** 2
     with torch.no_grad():
         restart_at = {cfg.iterations * (r + 1) // (cfg.restarts + 1) for r in range(cfg.restarts)}
+        active = torch.arange(K * S)  # seeds still moving: a settled seed's further steps are below SETTLED
         for it in range(cfg.iterations):
-            T, J = geometric_jacobian(robot, q, joints)  # (B, 4, 4), (B, 6, n)
-            e = _error(T, flat_targets)  # (B, 6)
-            if it in restart_at:  # seeds still far off are stuck in a local minimum: draw them afresh
+            fresh = _random_q(robot, (K * S,), generator)[active] if it in restart_at else None  # every draw taken
+            if len(active) == 0:
+                continue
+            qa, goal = q[active], flat_targets[active]
+            T, J = geometric_jacobian(robot, qa, joints)  # (B, 4, 4), (B, 6, n)
+            e = _error(T, goal)  # (B, 6)
+            if fresh is not None:  # seeds still far off are stuck in a local minimum: draw them afresh
                 stuck = e.norm(dim=1) > RESTART_ERROR
-                q = torch.where(stuck[:, None], _random_q(robot, (K * S,), generator), q)
-                T, J = geometric_jacobian(robot, q, joints)
-                e = _error(T, flat_targets)
+                qa = torch.where(stuck[:, None], fresh, qa)
+                T, J = geometric_jacobian(robot, qa, joints)
+                e = _error(T, goal)
+            settled = e.norm(dim=1) < SETTLED
             dq = _dls_step(J, e, eye)  # (B, n)
             # Joints at a limit and pushed beyond it are locked for this step (an active set), so the
             # other joints take up the error instead of the clamp undoing part of every step.
-            locked = ((q <= lo) & (dq < 0)) | ((q >= hi) & (dq > 0))  # (B, n)
+            locked = ((qa <= lo) & (dq < 0)) | ((qa >= hi) & (dq > 0))  # (B, n)
             if bool(locked.any()):
                 dq = _dls_step(J * ~locked[:, None, :], e, eye)
             scale = (cfg.max_step / dq.abs().amax(dim=1, keepdim=True).clamp_min(1e-12)).clamp(max=1.0)
-            q = (q + dq * scale).clamp(lo, hi)
-        pos_err, rot_err = pose_errors(robot.fk(q)[robot.ee_link], flat_targets)
+            q[active] = torch.where(settled[:, None], qa, (qa + dq * scale).clamp(lo, hi))
+            active = active[~settled]
+        pos_err, rot_err = pose_errors(geometric_jacobian(robot, q, joints)[0], flat_targets)
     converged = (pos_err <= cfg.position_tolerance) & (rot_err <= cfg.rotation_tolerance)
     return IKResult(q.reshape(K, S, n), pos_err.reshape(K, S), rot_err.reshape(K, S), converged.reshape(K, S))

@@ -117,8 +117,11 @@ class ExpertPlanner:
             return f"{name} in collision: {d:.4f} m from an obstacle, closer than the clearance {self.cfg.clearance} m"
         return f"{name} in collision: self-collision"
 
-    def plan(self, q_start, q_goal, seed: int = 0) -> PlanResult:
-        """Plan from q_start (n,) to q_goal (n,) radians; reproducible for a given seed."""
+    def plan(self, q_start, q_goal, seed: int = 0, straight_free: bool | None = None) -> PlanResult:
+        """Plan from q_start (n,) to q_goal (n,) radians; reproducible for a given seed. `straight_free`:
+        whether the straight motion is valid, when the caller has checked it already with the same clearance
+        and resolution (`samp.expert.problems.straight_line_blocked`; a sampled problem's `detour`); None:
+        checked here."""
         t0, cfg, n = time.perf_counter(), self.cfg, self.robot.dof
         q_start, q_goal = _as_config(q_start, n, "q_start"), _as_config(q_goal, n, "q_goal")
         stats = {"planner": cfg.planner, "backend": self.backend, "seed": int(seed), "attempts": 0, "direct": False,
@@ -137,7 +140,9 @@ class ExpertPlanner:
         clipped = self._onto_limits(q_start), self._onto_limits(q_goal)
         stats["endpoint_clip"] = float(max(np.abs(clipped[0] - q_start).max(), np.abs(clipped[1] - q_goal).max()))
         q_start, q_goal = clipped  # what is planned between, returned, and the trajectory's first and last waypoint
-        direct = cfg.direct and bool(self.valid(segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]).all())
+        if straight_free is None and cfg.direct:
+            straight_free = bool(self.valid(segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]).all())
+        direct = cfg.direct and bool(straight_free)
         for attempt in range(cfg.attempts):
             stats["attempts"] = attempt + 1
             path, reason = self._attempt(q_start, q_goal, derive_seed(seed, attempt), direct, stats)
@@ -178,12 +183,9 @@ class ExpertPlanner:
 
 
 def make_planner(robot, scene, cfg: ExpertConfig | dict | str | None = None, world=None):
-    """The planner of `cfg.backend`: `ExpertPlanner` (ompl) or `CuroboPlanner` (curobo, optional)."""
+    """The planner of `cfg.backend`: `ExpertPlanner` (ompl, the only backend; `load_expert_config` refuses
+    `curobo`, planned work described in `samp.expert.curobo`)."""
     cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
-    if cfg.backend == "curobo":
-        from samp.expert.curobo import CuroboPlanner
-
-        return CuroboPlanner(robot, scene, cfg)
     return ExpertPlanner(robot, scene, cfg, world)
 
 
@@ -204,7 +206,8 @@ def plan_scene(robot, scene, count: int, seed: int, cfg: ExpertConfig | dict | s
                 result = PlanResult(False, None, problem.reason, {"planner": cfg.planner, "backend": cfg.backend,
                                                                   "attempts": 0, "planning_time": 0.0}, problem.q_start)
             else:
-                result = planner.plan(problem.q_start, problem.q_goal, seed=derive_seed(seed, i))
+                result = planner.plan(problem.q_start, problem.q_goal, seed=derive_seed(seed, i),
+                                      straight_free=None if problem.detour is None else not problem.detour)
             result.stats.update(goal_kind=problem.kind, goal_pose=None if problem.goal_pose is None else problem.goal_pose.tolist())
             results.append(result)
             bar.update()

@@ -15,6 +15,9 @@ stays unsolved with its reason. Starts are the previous goal (`start: chain`) or
 configurations. Everything is drawn from `seed`: the same seed gives the same problems. Every start and
 goal lies within the robot's exact (float64) joint limits, whatever the robot's dtype (IK clamps to the
 limits rounded inward, `samp.expert.ik.limits_inward`), so the expert's OMPL bounds accept all of them.
+With `detour_share` > 0, that share of the problems gets a goal whose straight joint-space line from the
+start is blocked (`straight_line_blocked`), so the expert must plan around obstacles; every problem records
+whether its line is blocked (`PlanningProblem.detour`).
 """
 
 from __future__ import annotations
@@ -28,13 +31,15 @@ from scipy.spatial.transform import Rotation
 from samp.expert.config import ExpertConfig, ProblemConfig, load_expert_config
 from samp.expert.ik import solve_ik
 
-__all__ = ["PlanningProblem", "ik_goals", "random_free_configs", "sample_problems", "target_approaches", "target_poses",
-           "workspace_poses"]
+__all__ = ["PlanningProblem", "ik_goals", "random_free_configs", "sample_problems", "straight_line_blocked",
+           "target_approaches", "target_poses", "workspace_poses"]
 
 POSITION_DRAWS = 64  # candidate points per wanted workspace position and round of rejection sampling
 CORRIDOR_POINTS = 5  # points checked along a target approach corridor
 FACING = 0.5  # a horizontal approach direction must be within 60 degrees of pointing at the base axis
 IK_BATCH = 4096  # configurations solved together (poses x seeds), to bound memory
+DETOUR_ROUNDS = 4  # rounds of fresh goal poses for a problem that must need a detour
+DETOUR_STREAM = 0xDE70  # key of the seed stream of detour choices
 
 
 @dataclass
@@ -46,6 +51,7 @@ class PlanningProblem:
     goal_pose: np.ndarray | None  # (4, 4) end-effector pose in the base frame that q_goal reaches
     kind: str  # "target" | "workspace"
     reason: str = ""
+    detour: bool | None = None  # the straight joint-space line from start to goal is not valid (None: no goal)
 
 
 def _frames(axes: np.ndarray, yaw: np.ndarray, approach_axis) -> np.ndarray:
@@ -184,9 +190,18 @@ def _goal_poses(scene, kinds: np.ndarray, cfg: ProblemConfig, rng: np.random.Gen
 
 
 def sample_problems(robot, scene, count: int, seed: int, cfg: ExpertConfig | None = None,
-                    world=None) -> list[PlanningProblem]:
+                    world=None, detour_share: float = 0.0) -> list[PlanningProblem]:
     """`count` seeded problems in `scene`; see the module docstring. A goal without a collision-free IK
-    solution after `goal_rounds` rounds gives a problem with q_goal None and its reason."""
+    solution after `goal_rounds` rounds gives a problem with q_goal None and its reason.
+
+    detour_share: the share of problems (round(share * count), at positions drawn from a stream of their
+    own) whose goal is chosen so that the straight joint-space line from the start is not valid, i.e. the
+    expert must plan a detour (`straight_line_blocked`): among the goal's IK solutions, the first in
+    `goal_select` order whose line is blocked, else from up to `DETOUR_ROUNDS` rounds of fresh poses of
+    the same kind; a problem that finds none keeps the usual goal. The other problems are drawn as usual
+    (some of them need a detour too). Every problem records whether it needs one (`detour`)."""
+    if not 0.0 <= detour_share <= 1.0:
+        raise ValueError(f"detour_share must be in [0, 1], got {detour_share}")
     from samp.sim import World
 
     cfg = cfg if isinstance(cfg, ExpertConfig) else load_expert_config(cfg)
@@ -195,7 +210,7 @@ def sample_problems(robot, scene, count: int, seed: int, cfg: ExpertConfig | Non
     own = world is None
     world = World(robot, scene) if own else world
     try:
-        return _sample(robot, scene, world, count, int(seed), cfg)
+        return _sample(robot, scene, world, count, int(seed), cfg, float(detour_share))
     finally:
         if own:
             world.close()
@@ -219,7 +234,42 @@ def _solve_goals(robot, scene, world, kinds: np.ndarray, cfg: ExpertConfig, gene
     return found
 
 
-def _sample(robot, scene, world, count: int, seed: int, cfg: ExpertConfig) -> list[PlanningProblem]:
+def straight_line_blocked(world, q_start: np.ndarray, q_goal: np.ndarray, cfg: ExpertConfig) -> bool:
+    """True when the straight joint-space motion from q_start to q_goal has a state (every `resolution`
+    radians) closer than `clearance` to an obstacle or in self-collision: the expert's `direct` check fails."""
+    from samp.expert.ompl_backend import FIRST_CHUNK, _coarse_to_fine
+    from samp.expert.trajectory import segment_states
+
+    states = segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]  # (C, n), the start first
+    order = np.concatenate([_coarse_to_fine(len(states) - 1), [0]]) if len(states) > 1 else np.zeros(1, int)
+    start, size = 0, FIRST_CHUNK  # coarse to fine in growing chunks: a blocked line usually stops early
+    while start < len(order):
+        if world.in_collision(states[order[start:start + size]], margin=cfg.clearance).any():
+            return True
+        start, size = start + size, size * 4
+    return False
+
+
+def _detour_goal(robot, scene, world, start, kind: str, candidates, cfg: ExpertConfig, drng, generator):
+    """(q_goal, pose) whose straight line from `start` is blocked, from `candidates` ((m, n), (m, 4, 4)) or
+    from up to DETOUR_ROUNDS rounds of fresh poses of `kind` (drawn with drng and `generator`), or None."""
+    pc = cfg.problems
+    qs, poses = candidates
+    for _ in range(DETOUR_ROUNDS + 1):
+        order = (np.argsort(np.linalg.norm(qs - start, axis=1), kind="stable") if pc.goal_select == "nearest"
+                 else drng.permutation(len(qs)))
+        for j in order.tolist():
+            if straight_line_blocked(world, start, qs[j], cfg):
+                return qs[j].copy(), poses[j]
+        fresh = _goal_poses(scene, np.full(pc.poses_per_goal, kind), pc, drng)
+        solved = ik_goals(robot, world, fresh, cfg, generator, drng)
+        qs = np.concatenate(solved)
+        poses = np.concatenate([np.repeat(p[None], len(q), axis=0) for p, q in zip(fresh, solved)])
+    return None
+
+
+def _sample(robot, scene, world, count: int, seed: int, cfg: ExpertConfig,
+            detour_share: float = 0.0) -> list[PlanningProblem]:
     pc = cfg.problems
     rng = np.random.default_rng(seed)
     generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
@@ -233,14 +283,22 @@ def _sample(robot, scene, world, count: int, seed: int, cfg: ExpertConfig) -> li
     randoms = iter(random_free_configs(robot, world, int((~chained).sum()), rng, cfg.clearance, pc))
     reason = (f"no valid goal: IK found no configuration {cfg.clearance} m clear of obstacles for "
               f"{pc.goal_rounds * pc.poses_per_goal} sampled {{}} poses")
+    # Detours from streams of their own: detour_share 0 leaves every other draw as it was.
+    drng = np.random.default_rng([seed, DETOUR_STREAM])
+    dgen = torch.Generator().manual_seed(int(drng.integers(2**62)))
+    wanted = drng.permutation(count) < round(detour_share * count) if detour_share > 0 else np.zeros(count, bool)
     problems: list[PlanningProblem] = []
     for i in range(count):
         start = problems[-1].q_goal if chained[i] else next(randoms)
         if not valid[i]:
             problems.append(PlanningProblem(start, None, None, str(kinds[i]), reason.format(kinds[i])))
             continue
-        j = _select(found[i][0], start, pc.goal_select, rng)
-        problems.append(PlanningProblem(start, found[i][0][j].copy(), found[i][1][j], str(kinds[i])))
+        chosen = _detour_goal(robot, scene, world, start, str(kinds[i]), found[i], cfg, drng, dgen) if wanted[i] else None
+        if chosen is None:
+            j = _select(found[i][0], start, pc.goal_select, rng)
+            chosen = found[i][0][j].copy(), found[i][1][j]
+        problems.append(PlanningProblem(start, chosen[0], chosen[1], str(kinds[i]),
+                                        detour=straight_line_blocked(world, start, chosen[0], cfg)))
     return problems
 
 

@@ -15,18 +15,45 @@ import itertools
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from samp.console import import_pybullet
 
 pb = import_pybullet()  # without its build-time banner
 
-__all__ = ["LinkBodies", "MESH_MARGIN"]
+__all__ = ["LinkBodies", "MESH_MARGIN", "matrix_to_quaternion"]
 
 # pybullet models a GEOM_MESH (convex hull or concave triangle mesh) as the exact shape grown by a 1 mm
 # sphere (its collision margin), so getClosestPoints reports 1 mm less per mesh than the exact distance;
 # measured against exact polytope distances (NNLS) to 1e-6 m (see samp/sim/world.py for the full probe).
 MESH_MARGIN = 0.001
+
+
+def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions x, y, z, w, from the largest of the four
+    candidate components (Shepperd's method, as scipy's `Rotation.from_matrix` does for a rotation)."""
+    R = np.asarray(R, dtype=np.float64)
+    m = R.reshape(-1, 3, 3)
+    d = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]], axis=1)  # (N, 4)
+    k = d.argmax(axis=1)
+    q = np.empty((len(m), 4))
+    i = k < 3  # a diagonal entry is largest: component k first
+    if i.any():
+        ki = k[i]
+        kj, kk = (ki + 1) % 3, (ki + 2) % 3
+        mi, rows = m[i], np.arange(int(i.sum()))
+        qi = np.empty((len(mi), 4))
+        qi[rows, ki] = 1 - d[i, 3] + 2 * mi[rows, ki, ki]
+        qi[rows, kj] = mi[rows, kj, ki] + mi[rows, ki, kj]
+        qi[rows, kk] = mi[rows, kk, ki] + mi[rows, ki, kk]
+        qi[:, 3] = mi[rows, kk, kj] - mi[rows, kj, kk]
+        q[i] = qi
+    t = ~i  # the trace is largest
+    if t.any():
+        mt = m[t]
+        q[t] = np.stack([mt[:, 2, 1] - mt[:, 1, 2], mt[:, 0, 2] - mt[:, 2, 0], mt[:, 1, 0] - mt[:, 0, 1],
+                         1 + d[t, 3]], axis=1)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return q.reshape(*R.shape[:-2], 4)
 
 
 class LinkBodies:
@@ -68,24 +95,26 @@ class LinkBodies:
         self.client = None
 
     def link_poses(self, q) -> np.ndarray:
-        """q (B, n) radians -> (B, L, 4, 4) float64 base-frame poses of `robot.link_names`, one batched FK."""
-        with torch.no_grad():
-            fk = self.robot.fk(torch.as_tensor(np.asarray(q), dtype=self.robot.dtype, device=self.robot.device))
-            T = torch.stack([fk[name] for name in self.robot.link_names], dim=1)  # (B, L, 4, 4)
-        return T.double().cpu().numpy()
+        """q (B, n) radians -> (B, L, 4, 4) float64 base-frame poses of `robot.link_names`, one batched FK
+        (in numpy for a serial arm: a collision query's few configurations cost torch more in overhead)."""
+        if isinstance(q, torch.Tensor):
+            q = q.detach().cpu().double().numpy()
+        return self.robot.link_poses_numpy(np.asarray(q, dtype=np.float64))
 
     @staticmethod
     def pose_arrays(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(..., L, 4, 4) link poses -> positions (..., L, 3) and quaternions (..., L, 4) x, y, z, w as
-        pybullet expects; one call for a whole batch (scipy's conversion costs ~50 us per call)."""
-        quat = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(*T.shape[:-2], 4)
-        return T[..., :3, 3], quat
+        """(..., L, 4, 4) link poses -> positions (..., L, 3) and unit quaternions (..., L, 4) x, y, z, w
+        as pybullet expects (`matrix_to_quaternion`, vectorised: scipy costs ~50 us per call)."""
+        return T[..., :3, 3], matrix_to_quaternion(T[..., :3, :3])
 
-    def place(self, pos: np.ndarray, quat: np.ndarray) -> None:
-        """Pose every part body from its link's position (L, 3) and quaternion (L, 4)."""
+    def place(self, pos: np.ndarray, quat: np.ndarray, parts=None) -> None:
+        """Pose the part bodies (all, or the indices `parts`) from their links' positions (L, 3) and
+        quaternions (L, 4)."""
         pos, quat = pos.tolist(), quat.tolist()
-        for body, li in zip(self.part_bodies, self.part_links):
-            pb.resetBasePositionAndOrientation(body, pos[li], quat[li], physicsClientId=self.client)
+        bodies, links = self.part_bodies, self.part_links
+        for i in range(len(bodies)) if parts is None else parts:
+            li = links[i]
+            pb.resetBasePositionAndOrientation(bodies[i], pos[li], quat[li], physicsClientId=self.client)
 
     def set_poses(self, T: np.ndarray) -> None:
         """Pose every part body from its link's pose, T (L, 4, 4) in `robot.link_names` order."""

@@ -81,6 +81,8 @@ class Robot(nn.Module):
             self._serial = SerialFK(self.urdf, self.joint_names, self.link_names, held, self._base_inv.numpy())
         except ValueError:
             self._serial = None
+        self._held = held
+        self._frame_fks: dict[tuple[str, ...], SerialFK | None] = {}  # `frames_fk`
 
         points, links, shells = self._robot_points()
         self.register_buffer("points", torch.from_numpy(points))
@@ -235,6 +237,33 @@ class Robot(nn.Module):
             self._check_q(q)
             return self._serial(q)
         return self._fk_base(q)[self._link_frames].transpose(0, 1)
+
+    def frames_fk(self, frames: tuple[str, ...]):
+        """A `SerialFK` for the URDF frames `frames` (e.g. the IK's joint frames and end effector) in the
+        robot's dtype and device, or None when the arm is not serial for them; built once per tuple."""
+        frames = tuple(frames)
+        if frames not in self._frame_fks:
+            try:
+                self._frame_fks[frames] = SerialFK(self.urdf, self.joint_names, list(frames), self._held,
+                                                   self._base_inv.double().cpu().numpy())
+            except ValueError:
+                self._frame_fks[frames] = None
+        fk = self._frame_fks[frames]
+        if fk is not None and (fk.A.dtype != self.dtype or fk.A.device != self.device):
+            fk.to(self.dtype, self.device)
+        return fk
+
+    def link_poses_numpy(self, q: np.ndarray) -> np.ndarray:
+        """q (B, n) float64 numpy -> (B, L, 4, 4) float64 numpy poses of the collision links, for the CPU
+        collision checks (`samp.robot.bodies.LinkBodies`): the serial arm's numpy FK, or the general FK."""
+        q = np.asarray(q, dtype=np.float64)
+        if self._serial is not None:
+            if q.ndim != 2 or q.shape[1] != self.dof:
+                raise ValueError(f"q must have shape (B, {self.dof}) for {self.name}'s joints, got {q.shape}")
+            return self._serial.numpy(q)
+        with torch.no_grad():
+            T = self._fk_base(torch.as_tensor(q, dtype=self.dtype, device=self.device))[self._link_frames]
+        return T.transpose(0, 1).double().cpu().numpy()
 
     def transform_points(self, q: torch.Tensor, poses: torch.Tensor | None = None) -> torch.Tensor:
         """q (B, n) -> (B, M, 3) robot points in the base frame, T_q(P); differentiable in q.

@@ -125,10 +125,15 @@ class World:
         boxes = np.array([pb.getAABB(o.body, physicsClientId=self.client) for o in self.obstacles]).reshape(-1, 2, 3)
         self._obstacle_lo, self._obstacle_hi = boxes[:, 0], boxes[:, 1]  # (K, 3) each, conservative
         self._parts = [part for name in robot.link_names for part in robot.geometry[name].parts]
-        self._vertices_t = [np.ascontiguousarray(part.vertices.T) for part in self._parts]  # (3, V) each
+        # every part's vertices (3, V) padded to the longest with copies of its first vertex, for one product
+        size = max(len(part.vertices) for part in self._parts)
+        self._vertices_t = np.stack([np.concatenate([part.vertices, np.repeat(part.vertices[:1], size - len(part.vertices),
+                                                                              axis=0)]).T for part in self._parts])
         base = robot.link_names.index(robot.base_link) if robot.base_link in robot.link_names else -1
         self._moving = np.flatnonzero(self.links.part_links != base)  # parts checked against obstacles
         self._self_pairs = self._allowed_part_pairs()  # (S, 2)
+        self._self_pair_parts = np.zeros((len(self._self_pairs), len(self._parts)), dtype=np.float32)  # (S, P) 0/1
+        self._self_pair_parts[np.arange(len(self._self_pairs))[:, None], self._self_pairs] = 1.0
         limits = robot.joint_limits.double().cpu().numpy()
         self._lower, self._upper = limits[:, 0] - LIMIT_TOLERANCE, limits[:, 1] + LIMIT_TOLERANCE
 
@@ -177,10 +182,24 @@ class World:
         near = self._obstacle_gaps(lo, hi) <= margin  # (B, Pm, K) candidate part-obstacle pairs
         touch = (self._self_gaps(lo, hi) <= 0.0) & self_collision  # (B, S) candidate part-part pairs
         todo = np.flatnonzero(~hit & (near.any(axis=(1, 2)) | touch.any(axis=1)))
+        if len(todo) == 0:
+            return hit
         pos, quat = self.links.pose_arrays(T[todo])  # (b, L, 3), (b, L, 4)
-        for j, b in enumerate(todo):
-            self.links.place(pos[j], quat[j])
-            hit[b] = self._obstacle_hit(T[b], near[b], margin) or self._self_hit(touch[b])
+        near, touch = near[todo], touch[todo]
+        # the parts each configuration's candidate pairs query: only those are posed
+        need = np.zeros((len(todo), len(self._parts)), dtype=bool)
+        need[:, self._moving] = near.any(axis=2)
+        need |= (touch.astype(np.float32) @ self._self_pair_parts) > 0
+        jo, io, ko = np.nonzero(near)  # candidate (configuration, moving part, obstacle) triples, by configuration
+        js, ss = np.nonzero(touch)
+        o_cut = np.searchsorted(jo, np.arange(len(todo) + 1)).tolist()
+        s_cut = np.searchsorted(js, np.arange(len(todo) + 1)).tolist()
+        obstacle_pairs = np.stack([self._moving[io], ko], axis=1).tolist()
+        ss = ss.tolist()
+        for j, b in enumerate(todo.tolist()):
+            self.links.place(pos[j], quat[j], np.flatnonzero(need[j]).tolist())
+            hit[b] = (self._obstacle_hit(T[b], obstacle_pairs[o_cut[j]:o_cut[j + 1]], margin)
+                      or self._self_hit(ss[s_cut[j]:s_cut[j + 1]]))
         return hit
 
     def min_distance(self, q) -> np.ndarray:
@@ -251,12 +270,9 @@ class World:
     # ----------------------------------------------------------------- broadphase
     def _part_boxes(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """T (B, L, 4, 4) -> the parts' exact world AABBs, lo and hi (B, P, 3)."""
-        B, P = len(T), len(self._parts)
-        lo, hi = np.empty((B, P, 3)), np.empty((B, P, 3))
-        for i, (vertices_t, li) in enumerate(zip(self._vertices_t, self.links.part_links)):
-            rotated = T[:, li, :3, :3] @ vertices_t  # (B, 3, V); matmul: einsum took 25x longer
-            lo[:, i], hi[:, i] = rotated.min(axis=2) + T[:, li, :3, 3], rotated.max(axis=2) + T[:, li, :3, 3]
-        return lo, hi
+        Tp = T[:, self.links.part_links]  # (B, P, 4, 4)
+        rotated = Tp[..., :3, :3] @ self._vertices_t  # (B, P, 3, V); matmul: einsum took 25x longer
+        return rotated.min(axis=3) + Tp[..., :3, 3], rotated.max(axis=3) + Tp[..., :3, 3]
 
     def _obstacle_gaps(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """(B, P, 3) part boxes -> (B, Pm, K) box gaps of the moving parts to each obstacle."""
@@ -269,14 +285,15 @@ class World:
         return _box_gap(lo[:, a], hi[:, a], lo[:, b], hi[:, b])
 
     # ----------------------------------------------------------------- narrowphase (bodies posed)
-    def _obstacle_hit(self, T: np.ndarray, near: np.ndarray, margin: float) -> bool:
-        """near (Pm, K) candidate pairs of one configuration posed at T (L, 4, 4)."""
-        return any(self._distance(T, self._moving[i], k, margin) < margin for i, k in np.argwhere(near))
+    def _obstacle_hit(self, T: np.ndarray, pairs: list, margin: float) -> bool:
+        """pairs: candidate [part, obstacle] pairs of one configuration posed at T (L, 4, 4)."""
+        return any(self._distance(T, i, k, margin) < margin for i, k in pairs)
 
-    def _self_hit(self, touch: np.ndarray) -> bool:
-        """touch (S,) candidate part pairs of the posed configuration; True if one pair penetrates."""
+    def _self_hit(self, pairs: list) -> bool:
+        """pairs: candidate part pairs (indices into the allowed pairs) of the posed configuration; True if
+        one pair penetrates."""
         bodies, client = self.links.part_bodies, self.client
-        for s in np.flatnonzero(touch):
+        for s in pairs:
             a, b = self._self_pairs[s]
             points = pb.getClosestPoints(bodies[a], bodies[b], 0.0, physicsClientId=client)
             if min((p[8] for p in points), default=np.inf) + 2 * MESH_MARGIN < 0.0:

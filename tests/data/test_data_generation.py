@@ -319,6 +319,8 @@ def test_spec_without_a_valid_start_is_a_clear_error(tmp_path):
     ({"val_scenes": -1}, r"train_scenes, val_scenes and test_scenes must be >= 0 .* got \(1, -1, 1\)"),
     ({"eval_problems_per_scene": 0}, "eval_problems_per_scene must be >= 0, and >= 1 when the spec has test scenes"),
     ({"scene_namespace": ""}, "scene_namespace must be a non-empty string or null"),
+    ({"detour_share": 1.5}, r"detour_share must be in \[0, 1\], got 1.5"),
+    ({"expert_overrides": {"backend": "curobo"}}, "backend 'curobo' is not implemented"),
 ])
 def test_bad_specs_say_what_is_wrong(bad, message):
     with pytest.raises(ValueError, match=message):

@@ -1,4 +1,4 @@
-"""Expert config loading and validation, planner names, the optional cuRobo backend."""
+"""Expert config loading and validation, planner names, the cuRobo backend refused (planned work)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 
 from samp.expert import ExpertConfig, available_planners, load_expert_config, make_planner
-from samp.expert.curobo import curobo_available
+from samp.expert.curobo import CuroboPlanner, curobo_available
 from samp.scene import Scene
 
 
@@ -53,9 +53,13 @@ def test_unknown_planner_lists_the_available_ones(robots):
         make_planner(robots["panda"], Scene("empty"), load_expert_config(planner="RRTmagic"))
 
 
-def test_curobo_backend_says_what_is_missing(robots):
+def test_curobo_backend_is_refused_as_not_implemented(robots):
+    """Not offered: selecting it (a config, an override, a dataset spec) is a clear error, whatever the machine."""
+    with pytest.raises(ValueError, match="backend 'curobo' is not implemented.*planned work.*use backend: ompl"):
+        load_expert_config(backend="curobo")
+    with pytest.raises(ValueError, match="backend 'curobo' is not implemented"):
+        make_planner(robots["panda"], Scene("empty"), {"backend": "curobo"})
+    with pytest.raises(NotImplementedError, match="planned work"):
+        CuroboPlanner(robots["panda"], Scene("empty"), load_expert_config())
     ok, why = curobo_available()
-    if ok:
-        pytest.skip("cuRobo and CUDA are present; the backend is not implemented and raises NotImplementedError")
-    with pytest.raises(RuntimeError, match="curobo|CUDA"):
-        make_planner(robots["panda"], Scene("empty"), load_expert_config(backend="curobo"))
+    assert ok or "cuRobo" in why

@@ -3,6 +3,7 @@ float64 and float32, with gradients; and `transform_points` from given poses (bo
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -23,6 +24,34 @@ def test_link_poses_equal_the_general_fk(name, dtype, tol, _isolated_cache):
     general = robot.fk(q)  # pytorch-kinematics over every frame
     expected = torch.stack([general[link] for link in robot.link_names], dim=1)
     assert torch.allclose(robot.link_poses(q), expected, atol=tol, rtol=0)
+
+
+@pytest.mark.parametrize("name", ["panda", "iiwa", "xarm6"])
+def test_numpy_link_poses_and_ik_frames_equal_the_general_fk(name, _isolated_cache):
+    """The collision checks' numpy FK (`Robot.link_poses_numpy`) and the IK's frames (`Robot.frames_fk`)."""
+    robot = load_robot(name, dtype=torch.float64)
+    q = _q(robot, 17, torch.float64)
+    general = robot.fk(q)
+    expected = torch.stack([general[link] for link in robot.link_names], dim=1).numpy()
+    assert np.allclose(robot.link_poses_numpy(q.numpy()), expected, atol=1e-12, rtol=0)
+    frames = (*robot.link_names[1:3], robot.ee_link)
+    serial = robot.frames_fk(frames)
+    assert serial is not None
+    oracle = torch.stack([general[f] for f in frames], dim=1)
+    assert torch.allclose(serial(q), oracle, atol=1e-12, rtol=0)
+    assert np.allclose(serial.numpy(q.numpy()), oracle.numpy(), atol=1e-12, rtol=0)
+
+
+def test_matrix_to_quaternion_matches_scipy():
+    from scipy.spatial.transform import Rotation
+
+    from samp.robot.bodies import matrix_to_quaternion
+
+    R = np.concatenate([Rotation.random(500, random_state=0).as_matrix(),  # and each branch of the method:
+                        np.diag([1.0, -1, -1])[None], np.diag([-1.0, 1, -1])[None], np.diag([-1.0, -1, 1])[None]])
+    ours, theirs = matrix_to_quaternion(R), Rotation.from_matrix(R).as_quat()
+    assert np.allclose(np.abs((ours * theirs).sum(axis=1)), 1.0, atol=1e-12)  # the same rotation (q ~ -q)
+    assert np.allclose(Rotation.from_quat(ours).as_matrix(), R, atol=1e-12)
 
 
 @pytest.mark.parametrize("count", [3, 20])  # one gather per point (B <= 8), or one product per link run

@@ -9,6 +9,8 @@ import torch
 from samp.data import generate
 from samp.data.module import TrajectoryDataModule
 
+pytestmark = pytest.mark.slow  # generates a dataset: deselected by `make test-fast`
+
 SPEC = {"name": "dm_scenes", "robot": "panda", "seed": 5, "train_scenes": 3, "val_scenes": 1, "test_scenes": 0,
         "trajectories_per_scene": 2, "eval_problems_per_scene": 0, "generators": ["tabletop", "shelf"],
         "resolutions": [8]}

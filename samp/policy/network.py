@@ -42,7 +42,7 @@ class PolicyConfig:
     point_encoder: bool = True  # ablation: False drops the PointNet branch
     env_encoder: bool = True  # ablation: False drops the environment branch (no grid at all)
     goal_features: bool = True  # MLP_I also sees u_g - u_t, its direction and its length (False: the paper's [u_t, u_g])
-    norm: str = "batch"  # Phi_3D's normalisation: batch (the paper's), group (per scene) or none; see `EnvEncoder`
+    norm: str = "group"  # Phi_3D's normalisation: group (per scene), batch (the paper's) or none; see `EnvEncoder`
     registration: str = "centres"  # where feature cells sit: centres (their true centres) or bounds (before 2026-11)
 
 
@@ -134,7 +134,7 @@ class EnvEncoder(nn.Module):
     the same in training and evaluation; "none" keeps the conv's output as it is.
     """
 
-    def __init__(self, channels: int, norm: str = "batch", registration: str = "centres"):
+    def __init__(self, channels: int, norm: str = "group", registration: str = "centres"):
         super().__init__()
         if norm not in NORMS:
             raise ValueError(f"model.norm must be one of {NORMS}, got {norm!r}")

@@ -168,8 +168,11 @@ class PolicySystem(PolicySystemBase, kind="samp"):
     def _build(cls, hparams: dict, record: dict) -> "PolicySystem":
         if not record.get("robot_sdf"):
             raise ValueError("the samp checkpoint carries no robot SDF (its record has no robot_sdf payload)")
-        if "registration" not in (record.get("net") or {}):  # trained before feature cells were placed at their centres
+        net = record.get("net") or {}
+        if "registration" not in net:  # trained before feature cells were placed at their centres
             hparams["model"] = {**(hparams.get("model") or {}), "registration": "bounds"}
             log.info("this policy checkpoint predates feature registration at cell centres: its feature volume is "
                      "read over the grid's bounds, as it was trained (model.registration=bounds)")
+        if "norm" not in net:  # trained when BatchNorm was the only normalisation
+            hparams["model"] = {**(hparams.get("model") or {}), "norm": "batch"}
         return cls(**hparams, robot_sdf_payload=record["robot_sdf"])

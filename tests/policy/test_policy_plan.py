@@ -225,3 +225,29 @@ def test_checked_planner_refuses_bad_settings(run_dir):
         load_policy(run_dir, check=0)
     with pytest.raises(ValueError, match="check.spread"):
         load_policy(run_dir, check={"spread": -1.0})
+
+
+def test_a_checkpoint_from_before_registration_and_norm_loads_with_its_own_conventions(run_dir, caplog):
+    """A checkpoint written before `model.registration` and `model.norm` existed (its record's net and its
+    hyperparameters without them) loads with the conventions it was trained with, bounds and BatchNorm, and
+    says so; today's checkpoint keeps its own."""
+    import logging
+
+    from samp.integrity import load_torch_file
+    from samp.names import CHECKPOINT_RECORD
+    from samp.policy import load_system
+
+    ckpt = load_torch_file(run_dir / "checkpoints" / "last.ckpt", "policy checkpoint", trust=True)
+    assert load_system(ckpt).net_cfg.registration == "centres"
+    for key in ("registration", "norm"):
+        ckpt[CHECKPOINT_RECORD]["net"].pop(key)
+        ckpt["hyper_parameters"]["model"].pop(key, None)
+    # the old convention had BatchNorm's buffers: rebuild them as such from the GroupNorm-trained weights
+    state = ckpt["state_dict"]
+    for name in ("running_mean", "running_var", "num_batches_tracked"):
+        state[f"net.env.net.1.{name}"] = torch.zeros(2) if name != "num_batches_tracked" else torch.tensor(0)
+    with caplog.at_level(logging.INFO, logger="samp.policy.system"):
+        old = load_system(ckpt)
+    assert (old.net_cfg.registration, old.net_cfg.norm) == ("bounds", "batch")
+    assert isinstance(old.net.env.net[1], torch.nn.BatchNorm3d)
+    assert "model.registration=bounds" in caplog.text

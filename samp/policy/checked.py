@@ -7,7 +7,9 @@ there (within `via_reach` radians of it, or after a third of `max_steps`) for th
 together, one policy call per step. After each step the new segment of every candidate is checked against
 the anchor grid: the grid's SDF, trilinear at the robot points posed at `substeps` configurations along the
 segment, must stay above `margin` metres; a detour that fails this stops there (the plain rollout always
-runs on). The first candidate to reach the goal with a clear record is the answer; when none does, the
+runs on). A candidate that stalls within `finish` radians of the goal configuration ends on the straight
+segment to it when the grid says that segment is clear too (the learned policy tends to stop a few
+centimetres short of goals close to surfaces). The first candidate to reach the goal with a clear record is the answer; when none does, the
 plain rollout.
 
 The check reads the same anchor grid the policy reads (the scene's exact SDF at n_e anchors), so it costs
@@ -39,6 +41,7 @@ class CheckConfig:
     via_reach: float = 0.15  # a candidate turns to the goal within this of its via configuration ...
     margin: float = 0.01  # clear: the grid's SDF at every robot point stays above this
     substeps: int = 3  # configurations checked per step (the step's end included)
+    finish: float = 0.5  # a candidate that stalls this close to the goal (rad) ends on a straight checked segment
     max_steps: int = 150
     position_tolerance: float = 0.02
     orientation_tolerance: float = 15.0
@@ -73,14 +76,24 @@ class CheckedPolicy:
         vias[0] = goal
         return vias
 
-    def _clearance(self, grid: torch.Tensor, bounds, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
+    def _clearance(self, grid: torch.Tensor, bounds, q0: torch.Tensor, q1: torch.Tensor,
+                   substeps: int | None = None) -> torch.Tensor:
         """(R,) the smallest grid SDF at the robot points over `substeps` configurations from q0 to q1 (R, n)."""
-        s = self.cfg.substeps
+        s = substeps or self.cfg.substeps
         t = torch.arange(1, s + 1, dtype=q0.dtype, device=q0.device) / s
         qs = (q0[:, None] + t[None, :, None] * (q1 - q0)[:, None]).reshape(-1, q0.shape[1])  # (R s, n)
         points = self.robot.transform_points(qs)  # (R s, M, 3)
         d = sample_grid(grid, points.reshape(-1, 3), bounds).view(len(q0), -1)
         return d.amin(dim=1)
+
+    def _finishes(self, grid: torch.Tensor, bounds, q: torch.Tensor, goal: torch.Tensor, clear: float) -> bool:
+        """Whether a candidate stalled at q (clear so far) ends on the straight segment to the goal: within
+        `finish` radians of it, and the segment clear of the grid at sub-steps of at most 0.02 rad."""
+        dist = float((goal - q).norm())
+        if self.cfg.finish <= 0 or dist > self.cfg.finish or clear <= self.cfg.margin:
+            return False
+        steps = max(1, int(np.ceil(dist / 0.02)))
+        return float(self._clearance(grid, bounds, q[None], goal[None], steps)[0]) > self.cfg.margin
 
     def plan(self, problem) -> PlannedTrajectory:
         """problem: a `samp.eval.Problem` (its scene, q_start, q_goal) -> the chosen trajectory."""
@@ -102,6 +115,7 @@ class CheckedPolicy:
         clear = self._clearance(grid, bounds, q, q).double().cpu().numpy()
         done = np.zeros(K, dtype=bool)
         reached = np.zeros(K, dtype=bool)
+        finished = np.zeros(K, dtype=bool)  # reached by the straight segment after a stall
         still = np.zeros(K, dtype=int)
         ends = np.full(K, -1)
         chosen = None
@@ -127,6 +141,8 @@ class CheckedPolicy:
                     elif (still[k] >= cfg.stall_steps and hg[k]) or not np.isfinite(q_np[k]).all() or \
                             (k > 0 and clear[k] <= cfg.margin):  # an unclear detour cannot win: stop stepping it
                         done[k], ends[k] = True, step + 1
+                        if still[k] >= cfg.stall_steps and self._finishes(grid, bounds, q[k], goal, clear[k]):
+                            reached[k] = finished[k] = True
                 winners = np.flatnonzero(reached & (clear > cfg.margin))
                 if len(winners):
                     chosen = int(winners[0])
@@ -139,6 +155,7 @@ class CheckedPolicy:
             chosen = 0
             self.chosen["unclear" if reached[0] else "unreached"] += 1
         end = ends[chosen] if ends[chosen] >= 0 else len(path) - 1
-        trajectory = np.stack([p[chosen] for p in path[:end + 1]])
+        trajectory = np.stack([p[chosen] for p in path[:end + 1]]
+                              + ([np.asarray(problem.q_goal, dtype=np.float64)] if finished[chosen] else []))
         return PlannedTrajectory(trajectory, time.perf_counter() - t0,
                                  "" if reached[chosen] else "no candidate reached the goal")

@@ -181,7 +181,7 @@ def test_checked_planner_with_one_candidate_is_the_plain_plan(run_dir):
     """samp+check with one candidate steps the same policy from the same start: its trajectory is `plan`'s."""
     from samp.eval import Problem
 
-    plain, checked = load_policy(run_dir), load_policy(run_dir, check=1)
+    plain, checked = load_policy(run_dir), load_policy(run_dir, check={"candidates": 1, "finish": 0.0})
     scene, problem = _problem(plain)
     want = plain.plan(scene, problem.q_start, problem.q_goal, max_steps=40)
     checked.cfg.max_steps = 40
@@ -218,6 +218,20 @@ def test_checked_planner_clearance_matches_an_independent_trilinear_oracle(run_d
     vias = checked._vias(start, goal, "x")
     assert torch.equal(vias, checked._vias(start, goal, "x")) and not torch.equal(vias, checked._vias(start, goal, "y"))
     assert torch.equal(vias[0], goal) and (vias[1:] - vias[0]).abs().max() > 0.1
+
+
+def test_checked_planner_finishes_a_stall_only_on_a_clear_short_segment(run_dir):
+    """The straight finish after a stall: taken within `finish` radians when the grid is clear along the
+    segment; refused beyond that distance, through an obstacle, or after a candidate was already unclear."""
+    checked = load_policy(run_dir, check={"finish": 0.5, "margin": 0.01})
+    bounds, n = checked.policy.system.bounds, checked.n_e
+    free, solid = torch.full((n, n, n), 0.5), torch.full((n, n, n), -0.5)
+    goal = checked.robot.home.to(checked.robot.dtype)
+    near, far = goal + 0.1, goal + 0.4  # joint-space distances 0.26 and 1.06 rad
+    assert checked._finishes(free.to(goal.dtype), bounds, near, goal, clear=0.2)
+    assert not checked._finishes(free.to(goal.dtype), bounds, far, goal, clear=0.2)
+    assert not checked._finishes(solid.to(goal.dtype), bounds, near, goal, clear=0.2)
+    assert not checked._finishes(free.to(goal.dtype), bounds, near, goal, clear=0.005)
 
 
 def test_checked_planner_refuses_bad_settings(run_dir):

@@ -25,32 +25,14 @@ REPO = Path(__file__).resolve().parents[2]
 SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
 
 
-def _payload(robot) -> dict:
-    """A small hash-grid robot SDF in the artifact format, its weights scaled up so that its values (and so
-    the pairs the robot-point query must evaluate) are far from zero."""
-    from samp.robot_sdf.artifact import describe, net_spec
-    from samp.robot_sdf.model import UnifiedHashSDF
-    from samp.robot_sdf.samples import link_normalisation
-
-    torch.manual_seed(0)
-    kwargs = {"num_links": len(robot.link_names), "encoding": {"levels": 4, "log2_table_size": 10, "finest": 64},
-              "hidden": [16]}
-    net = UnifiedHashSDF(**kwargs)
-    with torch.no_grad():
-        for table in net.encoder.tables:
-            table.uniform_(-1, 1)
-    centres, scales = link_normalisation(robot, 0.02)
-    info = describe(robot, net_spec(net, kwargs), "test", torch.tensor(centres), torch.tensor(scales))
-    return {"info": info, "state_dict": net.state_dict(), "artifact_id": "test"}
-
-
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory, tiny_datamodule, robots):
+def run_dir(tmp_path_factory, tiny_datamodule, robots, small_robot_sdf):
     """A run folder holding a checkpoint of a SAMP policy trained for a few steps (real Lightning fit)."""
     import pytorch_lightning as pl
 
     dm = tiny_datamodule(8)
-    system = PolicySystem(robot="panda", robot_sdf_payload=_payload(robots["panda"]), model=SMALL_NET)
+    payload = small_robot_sdf(robots["panda"], spread=True)
+    system = PolicySystem(robot="panda", robot_sdf_payload=payload, model=SMALL_NET)
     system.bind(dm.binding)
     trainer = pl.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
                          enable_progress_bar=False, enable_model_summary=False)

@@ -9,9 +9,6 @@ import torch
 from samp.data import generate
 from samp.data.module import TrajectoryDataModule
 from samp.policy.system import PolicySystem
-from samp.robot_sdf.artifact import describe, net_spec
-from samp.robot_sdf.model import UnifiedHashSDF
-from samp.robot_sdf.samples import link_normalisation
 
 pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
 
@@ -20,23 +17,12 @@ SPEC = {"name": "pol", "robot": "panda", "seed": 5, "train_scenes": 1, "val_scen
 SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
 
 
-def _robot_sdf_payload(robot) -> dict:
-    """A small, untrained unified hash-grid SDF in the artifact format (weights are irrelevant here)."""
-    torch.manual_seed(0)
-    kwargs = {"num_links": len(robot.link_names), "encoding": {"levels": 4, "log2_table_size": 10, "finest": 64},
-              "hidden": [16]}
-    net = UnifiedHashSDF(**kwargs)
-    centres, scales = link_normalisation(robot, 0.02)
-    info = describe(robot, net_spec(net, kwargs), "test", torch.tensor(centres), torch.tensor(scales))
-    return {"info": info, "state_dict": net.state_dict(), "artifact_id": "test"}
-
-
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory, robots):
+def setup(tmp_path_factory, robots, small_robot_sdf):
     folder = generate(SPEC, root=tmp_path_factory.mktemp("datasets"), progress=False)
     dm = TrajectoryDataModule(str(folder), n_e=16, batch_size=50, noise=0.0)
     dm.setup()
-    payload = _robot_sdf_payload(robots["panda"])
+    payload = small_robot_sdf(robots["panda"])
     return dm, payload
 
 

@@ -13,24 +13,8 @@ from samp.policy.interface import EnvBatch
 SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
 
 
-def _payload(robot) -> dict:
-    """A small untrained hash-grid robot SDF in the artifact format (the rollout's wiring is under test here;
-    the trained one is checked in test_policy_system)."""
-    from samp.robot_sdf.artifact import describe, net_spec
-    from samp.robot_sdf.model import UnifiedHashSDF
-    from samp.robot_sdf.samples import link_normalisation
-
-    torch.manual_seed(0)
-    kwargs = {"num_links": len(robot.link_names), "encoding": {"levels": 4, "log2_table_size": 10, "finest": 64},
-              "hidden": [16]}
-    net = UnifiedHashSDF(**kwargs)
-    centres, scales = link_normalisation(robot, 0.02)
-    info = describe(robot, net_spec(net, kwargs), "test", torch.tensor(centres), torch.tensor(scales))
-    return {"info": info, "state_dict": net.state_dict(), "artifact_id": "test"}
-
-
 @pytest.fixture(scope="module")
-def trained(tiny_datamodule, robots, tmp_path_factory):
+def trained(tiny_datamodule, robots, tmp_path_factory, small_robot_sdf):
     """(data module, fitted system, checkpoint path): three Lightning steps on the tiny dataset."""
     import pytorch_lightning as pl
 
@@ -38,7 +22,7 @@ def trained(tiny_datamodule, robots, tmp_path_factory):
 
     dm = tiny_datamodule(32)
     torch.manual_seed(0)
-    system = PolicySystem(robot="panda", robot_sdf_payload=_payload(robots["panda"]), model=SMALL_NET)
+    system = PolicySystem(robot="panda", robot_sdf_payload=small_robot_sdf(robots["panda"]), model=SMALL_NET)
     system.bind(dm.binding)
     trainer = pl.Trainer(max_steps=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
                          enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
@@ -74,11 +58,11 @@ def test_load_policy_steps_as_the_trained_network_predicts(trained):
     assert ((got >= lim[:, 0] - 1e-6) & (got <= lim[:, 1] + 1e-6)).all(), "steps stay within the joint limits"
 
 
-def test_a_never_fitted_system_is_refused(robots):
+def test_a_never_fitted_system_is_refused(robots, small_robot_sdf):
     from samp.policy.step import SAMPStepPolicy
     from samp.policy.system import PolicySystem
 
-    system = PolicySystem(robot="panda", robot_sdf_payload=_payload(robots["panda"]), model=SMALL_NET)
+    system = PolicySystem(robot="panda", robot_sdf_payload=small_robot_sdf(robots["panda"]), model=SMALL_NET)
     with pytest.raises(ValueError, match="never fitted to a dataset"):
         SAMPStepPolicy(system)
 

@@ -32,7 +32,7 @@ import torch
 from samp.policy.baselines.mpnet import set_dropout
 from samp.policy.network import denormalize, normalize
 
-__all__ = ["MPNetPlanConfig", "MPNetPlanner", "densify"]
+__all__ = ["MPNetPlanConfig", "MPNetPlanner", "SceneWorlds", "densify"]
 
 
 @dataclass
@@ -85,7 +85,27 @@ def densify(path: np.ndarray, count: int) -> np.ndarray:
     return np.concatenate(out)
 
 
-class MPNetPlanner:
+class SceneWorlds:
+    """One collision `World` per scene for a planner with a float64 robot `_exact`, built on first use and
+    kept (planning many problems in a scene reuses it); `close()` releases them."""
+
+    _worlds: dict
+
+    def close(self) -> None:
+        for world in self._worlds.values():
+            world.close()
+        self._worlds.clear()
+
+    def _world(self, scene):
+        from samp.sim import World
+
+        key = scene.content_hash()
+        if key not in self._worlds:
+            self._worlds[key] = World(self._exact, scene)
+        return self._worlds[key]
+
+
+class MPNetPlanner(SceneWorlds):
     """A trained `MPNetSystem` as a trajectory planner (name "mpnet"). Keeps one `World` per scene;
     `close()` releases them. `outcomes` counts how problems ended (neural, fallback, failed)."""
 
@@ -100,19 +120,6 @@ class MPNetPlanner:
         self._lo, self._hi = self._exact.joint_limits.numpy().T
         self._worlds: dict[str, object] = {}
         self.outcomes: Counter = Counter()
-
-    def close(self) -> None:
-        for world in self._worlds.values():
-            world.close()
-        self._worlds.clear()
-
-    def _world(self, scene):
-        from samp.sim import World
-
-        key = scene.content_hash()
-        if key not in self._worlds:
-            self._worlds[key] = World(self._exact, scene)
-        return self._worlds[key]
 
     # ------------------------------------------------------------------ the pieces
     def _free(self, a: np.ndarray, b: np.ndarray, world) -> bool:

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from samp.policy.baselines.mpnet import set_dropout
+from samp.policy.baselines.mpnet_planner import SceneWorlds
 from samp.policy.network import denormalize, normalize
 
 __all__ = ["LearnedSampler", "SIMPNetPlanConfig", "SIMPNetPlanner", "learned_sampler"]
@@ -144,7 +145,7 @@ def learned_sampler(learned: LearnedSampler, keep: list, tries: int = 10):
     return allocate
 
 
-class SIMPNetPlanner:
+class SIMPNetPlanner(SceneWorlds):
     """A trained `SIMPNetSystem` as a trajectory planner (name "simpnet"). Keeps one `World` per scene;
     `close()` releases them. `drawn` counts the learned and uniform draws over every problem planned."""
 
@@ -166,19 +167,6 @@ class SIMPNetPlanner:
             setattr(self._expert_cfg, key, value)
         self._worlds: dict[str, object] = {}
         self.drawn = {"learned": 0, "uniform": 0}
-
-    def close(self) -> None:
-        for world in self._worlds.values():
-            world.close()
-        self._worlds.clear()
-
-    def _world(self, scene):
-        from samp.sim import World
-
-        key = scene.content_hash()
-        if key not in self._worlds:
-            self._worlds[key] = World(self._exact, scene)
-        return self._worlds[key]
 
     def proposals(self, grid: torch.Tensor, q_start: np.ndarray, q_goal: np.ndarray) -> np.ndarray:
         """(n_e, n_e, n_e) grid, start and goal (n,) radians -> (2 * rollouts * rollout_steps, n) radians:

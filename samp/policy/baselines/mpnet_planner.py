@@ -104,6 +104,14 @@ class SceneWorlds:
             self._worlds[key] = World(self._exact, scene)
         return self._worlds[key]
 
+    def _scene(self, problem) -> tuple:
+        """The problem's collision World and anchor grid, refusing a scene with other workspace bounds."""
+        bounds = [list(map(float, b)) for b in self.system.bounds]
+        if [list(b) for b in problem.scene.bounds] != bounds:
+            raise ValueError(f"the {self.name} planner was trained on workspace bounds {bounds}; scene "
+                             f"{problem.scene.name!r} has {problem.scene.bounds}")
+        return self._world(problem.scene), problem.scene.anchor_grid(self.n_e)
+
 
 class MPNetPlanner(SceneWorlds):
     """A trained `MPNetSystem` as a trajectory planner (name "mpnet"). Keeps one `World` per scene;
@@ -206,11 +214,7 @@ class MPNetPlanner(SceneWorlds):
         """problem: a `samp.eval.Problem` -> `PlannedTrajectory` ((W, n) radians or None, seconds, reason)."""
         from samp.policy.interface import PlannedTrajectory
 
-        bounds = [list(map(float, b)) for b in self.system.bounds]
-        if [list(b) for b in problem.scene.bounds] != bounds:
-            raise ValueError(f"the mpnet planner was trained on workspace bounds {bounds}; scene "
-                             f"{problem.scene.name!r} has {problem.scene.bounds}")
-        world, grid = self._world(problem.scene), problem.scene.anchor_grid(self.n_e)
+        world, grid = self._scene(problem)
         device = self.system.device
         t0 = time.perf_counter()
         with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []), torch.no_grad():

@@ -189,11 +189,7 @@ class SIMPNetPlanner(SceneWorlds):
         from samp.expert import ExpertPlanner
         from samp.policy.interface import PlannedTrajectory
 
-        bounds = [list(map(float, b)) for b in self.system.bounds]
-        if [list(b) for b in problem.scene.bounds] != bounds:
-            raise ValueError(f"the simpnet planner was trained on workspace bounds {bounds}; scene "
-                             f"{problem.scene.name!r} has {problem.scene.bounds}")
-        world, grid = self._world(problem.scene), problem.scene.anchor_grid(self.n_e)
+        world, grid = self._scene(problem)
         device = self.system.device
         seed = zlib.crc32(f"{self.cfg.seed}/{problem.name}".encode())
         t0 = time.perf_counter()

@@ -54,6 +54,8 @@ class CheckConfig:
             raise ValueError(f"check.candidates must be an integer >= 1, got {self.candidates!r}")
         if not (isinstance(self.substeps, int) and self.substeps >= 1):
             raise ValueError(f"check.substeps must be an integer >= 1, got {self.substeps!r}")
+        if self.finish < 0:
+            raise ValueError(f"check.finish must be >= 0 radians (0: no straight finish), got {self.finish}")
         if self.spread < 0 or self.via_reach <= 0:
             raise ValueError(f"check.spread must be >= 0 and check.via_reach > 0 radians, got {self.spread}, "
                              f"{self.via_reach}")

@@ -4,8 +4,6 @@ policy trained at another n_e is refused, naming what the policy needs, before a
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import pytest
 import torch
@@ -14,12 +12,11 @@ from samp.eval.__main__ import main
 
 pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation: deselected by `make test-fast`
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "policy"))
-from test_policy_system import SMALL_NET, _robot_sdf_payload  # noqa: E402
+SMALL_NET = {"channels": 2, "env_hidden": [32], "point_hidden": [16, 32], "config_hidden": [16], "fusion_hidden": [32]}
 
 
 @pytest.fixture(scope="module")
-def trained_run(tiny_eval, tmp_path_factory, panda):
+def trained_run(tiny_eval, tmp_path_factory, panda, small_robot_sdf):
     """A run folder holding a real policy checkpoint, fitted two steps at n_e = 16 on the tiny dataset."""
     import pytorch_lightning as pl
 
@@ -28,7 +25,7 @@ def trained_run(tiny_eval, tmp_path_factory, panda):
 
     folder, _ = tiny_eval
     dm = TrajectoryDataModule(str(folder), n_e=16, batch_size=8, noise=0.0)
-    system = PolicySystem(robot="panda", robot_sdf_payload=_robot_sdf_payload(panda), model=SMALL_NET)
+    system = PolicySystem(robot="panda", robot_sdf_payload=small_robot_sdf(panda), model=SMALL_NET)
     trainer = pl.Trainer(max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
                          enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
     trainer.fit(system, datamodule=dm)

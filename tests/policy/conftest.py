@@ -1,5 +1,4 @@
-"""Shared fixtures of the policy and baseline tests: one tiny dataset (generated once per session) and a
-small robot SDF."""
+"""Shared fixtures of the baseline tests: one tiny dataset, generated once per session."""
 
 from __future__ import annotations
 
@@ -30,29 +29,3 @@ def tiny_datamodule(tiny):
 
     return make
 
-
-@pytest.fixture(scope="session")
-def small_robot_sdf():
-    """(robot, spread=False) -> a small untrained hash-grid robot SDF in the artifact format (a policy
-    checkpoint's robot_sdf payload). `spread` draws its hash tables from U(-1, 1), so that its values, and
-    the pairs a robot-point query must evaluate, are far from zero."""
-    import torch
-
-    from samp.robot_sdf.artifact import describe, net_spec
-    from samp.robot_sdf.model import UnifiedHashSDF
-    from samp.robot_sdf.samples import link_normalisation
-
-    def make(robot, spread: bool = False) -> dict:
-        torch.manual_seed(0)
-        kwargs = {"num_links": len(robot.link_names), "encoding": {"levels": 4, "log2_table_size": 10, "finest": 64},
-                  "hidden": [16]}
-        net = UnifiedHashSDF(**kwargs)
-        if spread:
-            with torch.no_grad():
-                for table in net.encoder.tables:
-                    table.uniform_(-1, 1)
-        centres, scales = link_normalisation(robot, 0.02)
-        info = describe(robot, net_spec(net, kwargs), "test", torch.tensor(centres), torch.tensor(scales))
-        return {"info": info, "state_dict": net.state_dict(), "artifact_id": "test"}
-
-    return make

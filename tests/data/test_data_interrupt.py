@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import psutil
 import pytest
@@ -36,8 +37,35 @@ def _until(condition, what: str, proc=None):
         time.sleep(0.05)
 
 
-def _start(root, *extra) -> subprocess.Popen:
+# A `sitecustomize` for the generation's processes: each worker runs its first scene as usual and then waits
+# before any further one, so when the test interrupts, at least one scene is finished and at least two are
+# not, however fast generation is. Watching for a file and then signalling was a race: on a fast machine
+# every scene could be done before the signal arrived.
+HOLD_AFTER_FIRST_SCENE = """
+import functools, os, time
+import samp.data.generation as generation
+
+_run_scene, _done = generation.run_scene, []
+
+
+@functools.wraps(_run_scene)
+def run_scene(*args, **kwargs):
+    if _done:  # this process finished a scene already: hold until the test has interrupted the generation
+        time.sleep(600)
+    _done.append(os.getpid())
+    return _run_scene(*args, **kwargs)
+
+
+generation.run_scene = run_scene
+"""
+
+
+def _start(root, *extra, hold: Path | None = None) -> subprocess.Popen:
+    """`python -m samp.data generate` of SPEC; with `hold` (a folder holding HOLD_AFTER_FIRST_SCENE as its
+    sitecustomize.py) every process of it holds after its first scene."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    if hold is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(hold), *filter(None, [env.get("PYTHONPATH")])])
     return subprocess.Popen([sys.executable, "-m", "samp.data", "generate", *OVERRIDES, f"root={root}", "progress=false",
                              "workers=2", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
@@ -57,7 +85,10 @@ def _gone(processes) -> bool:
 
 def test_ctrl_c_stops_at_once_keeps_finished_scenes_and_exits_130(tmp_path):
     work = work_dir(load_spec({**load_spec("quickstart").__dict__, **SPEC}), tmp_path)
-    proc = _start(tmp_path)
+    hold = tmp_path / "hold"
+    hold.mkdir()
+    (hold / "sitecustomize.py").write_text(HOLD_AFTER_FIRST_SCENE)
+    proc = _start(tmp_path, hold=hold)
     _until(lambda: len(_workers(proc)) >= 2 and any(work.glob("scene_*.mcap")), "finished scene", proc)
     workers = [psutil.Process(p.pid) for p in _workers(proc)]
     proc.send_signal(signal.SIGINT)  # to the parent only, as `kill -INT`; a terminal would signal the group

@@ -35,7 +35,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--scenes", type=int, default=4, help="data: scenes generated (one of them val)")
     ap.add_argument("--trajectories", type=int, default=25, help="data: problems per scene")
     ap.add_argument("--baseline-src", type=Path, default=None,
-                    help="data: a checkout of the samp to compare with (default: --baseline-rev in a temporary git worktree)")
+                    help="data, policy: a checkout of samp to compare with (data's default: --baseline-rev in a "
+                    "temporary git worktree; policy: its training step, with --robot-sdf)")
     ap.add_argument("--baseline-rev", default="47fc6b1",
                     help="data: the commit measured as the baseline when --baseline-src is not given ('none': skip it)")
     ap.add_argument("--detour-share", type=float, default=None,

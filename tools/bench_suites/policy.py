@@ -9,7 +9,8 @@ step times that hold. Stages of a step (`_stages`): FK of the links, posing the 
 at them (tables, and the exact network for comparison), sampling the scene's feature volume, the PointNet,
 the other MLPs; "other" is the rest of the step call (normalisation, argument passing, Python).
 
-Reads --anchors (added by the scene suite), --policy-run (eval suite); adds --robot-sdf and --tables.
+Reads --anchors (added by the scene suite), --policy-run (eval suite), --baseline-src (data suite); adds --robot-sdf
+and --tables.
 """
 
 from __future__ import annotations
@@ -32,8 +33,6 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--robot-sdf", help="policy: a trained robot SDF artifact for the untrained policy networks")
     ap.add_argument("--tables", type=int, default=None,
                     help="policy: joint angles per robot-SDF table (0: exact; default: the system's own)")
-    ap.add_argument("--baseline-src", help="policy: an older checkout (e.g. a git worktree) whose training step is timed "
-                    "in the same run against this one's (needs --robot-sdf), with the loss on the same batch")
 
 
 def _median_ms(fn, repeats: int = 50) -> float:
@@ -175,7 +174,7 @@ def _against_checkout(args, metrics: dict) -> list[list]:
         raise SystemExit("--baseline-src needs --robot-sdf ARTIFACT (a trained robot_sdf.pt): an untrained robot SDF "
                          "culls pairs unlike a trained one")
     here = str(Path(__file__).resolve().parents[2])
-    new, old = _step_in_process(here, args), _step_in_process(args.baseline_src, args)
+    new, old = _step_in_process(here, args), _step_in_process(str(args.baseline_src), args)
     exact = _step_in_process(here, args, "--exact", "--steps", "1")
     key = f"n{args.anchors[0]}/checkout"
     metrics.update({f"{key}/train_samples_per_s": B / new["seconds_per_step"],

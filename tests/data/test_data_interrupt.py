@@ -51,7 +51,7 @@ _run_scene, _done = generation.run_scene, []
 @functools.wraps(_run_scene)
 def run_scene(*args, **kwargs):
     if _done:  # this process finished a scene already: hold until the test has interrupted the generation
-        time.sleep(600)
+        time.sleep(60)
     _done.append(os.getpid())
     return _run_scene(*args, **kwargs)
 

@@ -93,6 +93,12 @@ MEMBERS = [f"{SWEEP}/experiment=samp_n40/run.json", f"{SWEEP}/experiment=samp_n7
 GPU = "needs a GPU"
 SLURM = "needs a SLURM cluster"
 LONG = "hours of training at this size; the same recipe runs shrunk in the steps above"
+# The README's Table I at the quickstart budget (its dataset id, the budget every method shares, SAMP's extras)
+TABLE_I_DATA = "quickstart@b6d6f297f058"
+TABLE_I_BUDGET = (f"datamodule.dataset={TABLE_I_DATA} trainer.max_epochs=5 system.optimizer.lr=1e-3 system.scheduler.T_0=5 "
+                  "system.scheduler.T_mult=1 datamodule.val_samples=1000")
+TABLE_I_SAMP = "system.robot_sdf=robot_sdf_panda_quick 'model.point_hidden=[32,64,128]' callbacks=default"
+TABLE_I_LONG = "minutes of training and evaluation per member; the anchor_size sweep runs shrunk above"
 
 STEPS: list[tuple[str, object]] = [
     # Datasets
@@ -172,10 +178,19 @@ STEPS: list[tuple[str, object]] = [
      Compose("experiment=simpnet", "tests/policy/test_baselines_cli.py trains and evaluates it shrunk")),
     ("python -m samp.train experiment=mpinet model=mpinet_paper trainer=gpu",
      Compose("experiment=mpinet model=mpinet_paper trainer=gpu", GPU)),
-    ("python -m samp.train experiment=mpinet datamodule.dataset=quickstart trainer.max_epochs=5 system.optimizer.lr=1e-3 "
-     "system.scheduler.T_0=5 system.scheduler.T_mult=1 datamodule.val_samples=1000",
-     Compose("experiment=mpinet datamodule.dataset=quickstart trainer.max_epochs=5 system.optimizer.lr=1e-3 "
-             "system.scheduler.T_0=5 system.scheduler.T_mult=1 datamodule.val_samples=1000", LONG)),
+    # Our Table I at the quickstart budget: the paper_table_1 sweep, its members named on the command line
+    ("python -m samp.data generate dataset=quickstart 'dataset.resolutions=[40,100,160]' workers=1",
+     Same("python -m samp.data generate dataset=quickstart workers=2", "the same spec with grids at n_e 160 too")),
+    (f"python -m samp.train -m sweep=paper_table_1 experiment=samp_n100 {TABLE_I_BUDGET} {TABLE_I_SAMP}",
+     Compose(f"-m sweep=paper_table_1 experiment=samp_n100 {TABLE_I_BUDGET} {TABLE_I_SAMP}", TABLE_I_LONG)),
+    (f"python -m samp.train -m sweep=paper_table_1 experiment=mpnet,simpnet,mpinet {TABLE_I_BUDGET}",
+     Compose(f"-m sweep=paper_table_1 experiment=mpnet,simpnet,mpinet {TABLE_I_BUDGET}", TABLE_I_LONG)),
+    (f"python -m samp.eval planner=expert_raw dataset={TABLE_I_DATA}",
+     Same("python -m samp.eval planner=expert_raw dataset=REF", "on the dataset of the Table I runs")),
+    (f"python -m samp.eval planner=ompl_sampling dataset={TABLE_I_DATA}",
+     Same("python -m samp.eval planner=ompl_sampling dataset=REF", "on the dataset of the Table I runs")),
+    (f"python -m samp.train -m sweep=paper_table_1 experiment=samp_n160 {TABLE_I_BUDGET} {TABLE_I_SAMP}",
+     Compose(f"-m sweep=paper_table_1 experiment=samp_n160 {TABLE_I_BUDGET} {TABLE_I_SAMP}", TABLE_I_LONG)),
     # Evaluation of the demo's run
     ("python -m samp.eval run=runs/mpinet/TIMESTAMP overwrite=true",
      Run(f"python -m samp.eval run={{run}} overwrite=true {EVAL}", ["{run}/eval/metrics.json"])),

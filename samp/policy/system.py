@@ -30,6 +30,7 @@ __all__ = ["NonFiniteLossError", "PolicySystem", "ROBOT_SDF_TABLES", "read_robot
 
 # Joint angles per one-joint table of the robot SDF at the robot points (0: exact); see `PolicySystem`.
 ROBOT_SDF_TABLES = 256
+ROBOT_SDF_PAIRS = ("all", "near")
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,11 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         robot_sdf_tables: K > 0 reads the robot SDF between a point and the next link along the chain
             from tables of K joint angles (`samp.robot_sdf.robot_points`, an approximation of the robot
             SDF network measured on the benchmark); 0 evaluates the network for every pair (exact).
+        robot_sdf_pairs: the robot SDF input of a rollout step: "all" pairs of a point and a link (exact, up
+            to the tables), or "near": only the pairs no arm joint or one arm joint apart (the rigid part and the
+            tables), skipping the network for the rest, an approximation measured on the benchmark (README,
+            "What a step costs"). None (the default): "near" with tables, "all" without (robot_sdf_tables=0).
+            Training always uses "all" (the collision loss needs true distances).
         optimizer, scheduler: `_partial_` config nodes (conf/optimizer/), see `PolicySystemBase`.
         robot_sdf_payload: the robot SDF as a checkpoint stores it (instead of `robot_sdf`).
     """
@@ -80,7 +86,7 @@ class PolicySystem(PolicySystemBase, kind="samp"):
     def __init__(self, robot: str = "panda", robot_sdf: str | None = None, model: dict | None = None,
                  loss: dict | None = None, collision_loss: bool = True, robot_sdf_feature: bool = True,
                  optimizer: dict | None = None, scheduler: dict | None = None, robot_sdf_payload: dict | None = None,
-                 robot_sdf_tables: int = ROBOT_SDF_TABLES):
+                 robot_sdf_tables: int = ROBOT_SDF_TABLES, robot_sdf_pairs: str | None = None):
         super().__init__(robot, optimizer, scheduler)
         self.save_hyperparameters(ignore=["robot_sdf_payload"])
         if robot_sdf_payload is None:  # a new policy: read the artifact the config names
@@ -96,6 +102,17 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         self.net = SAMPNet(self.net_cfg)
         self.loss_cfg = LossConfig(**(loss or {}))
         self.robot_sdf_tables = robot_sdf_tables
+        self._set_pairs(robot_sdf_pairs)
+
+    def _set_pairs(self, pairs: str | None) -> None:
+        if pairs is None:  # the default: no network for far pairs where tables cover the near ones
+            pairs = "near" if self.robot_sdf_tables >= 2 else "all"
+        if pairs not in ROBOT_SDF_PAIRS:
+            raise ValueError(f"robot_sdf_pairs must be one of {ROBOT_SDF_PAIRS}, got {pairs!r}")
+        if pairs == "near" and self.robot_sdf_tables < 2:
+            raise ValueError("robot_sdf_pairs=near reads the pairs one joint apart from tables: it needs "
+                             f"robot_sdf_tables >= 2, got {self.robot_sdf_tables}")
+        self.robot_sdf_pairs = pairs
 
     def train(self, mode: bool = True) -> "PolicySystem":
         super().train(mode)
@@ -108,7 +125,9 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         with torch.no_grad():
             poses = self.robot.link_poses(q)
             points = self.robot.transform_points(q, poses)
-            return points, self.robot_sdf.at_robot_points(q, points, poses, self.robot_sdf_tables)
+            near = self.robot_sdf_pairs == "near" and not self.training  # a rollout's approximation only
+            return points, self.robot_sdf.at_robot_points(q, points, poses, self.robot_sdf_tables,
+                                                          needed=False if near else None)
 
     def encode(self, grids: torch.Tensor) -> torch.Tensor | None:
         """(S, n_e, n_e, n_e) grids -> the env encoder's feature volumes (None without the env branch)."""
@@ -124,20 +143,25 @@ class PolicySystem(PolicySystemBase, kind="samp"):
                      n_e=self.n_e)
         return denormalize(u, self.limits)
 
-    def planner(self, robot_sdf_tables: int | None = None, check: int | dict | None = None, **options):
+    def planner(self, robot_sdf_tables: int | None = None, check: int | dict | None = None,
+                robot_sdf_pairs: str | None = None, **options):
         """The current weights as a `StepPolicy` (`SAMPStepPolicy`), for rollouts and `EvalCallback`.
-        `robot_sdf_tables` replaces the system's own (0: the exact robot SDF at the robot points).
+        `robot_sdf_tables` replaces the system's own (0: the exact robot SDF at the robot points);
+        `robot_sdf_pairs` likewise ("all" | "near", see the class).
         `check`: a number of candidates, or `CheckConfig` fields, gives the checked planner instead
         (`samp.policy.checked.CheckedPolicy`, "samp+check", a `TrajectoryPlanner`)."""
         from samp.policy.step import SAMPStepPolicy
 
         if options:
-            raise ValueError(f"the samp policy takes only robot_sdf_tables and check as planner options, got "
-                             f"{sorted(options)}")
+            raise ValueError(f"the samp policy takes only robot_sdf_tables, robot_sdf_pairs and check as planner "
+                             f"options, got {sorted(options)}")
         if robot_sdf_tables is not None:
             if not isinstance(robot_sdf_tables, int) or robot_sdf_tables < 0 or robot_sdf_tables == 1:
                 raise ValueError(f"robot_sdf_tables must be 0 (exact) or an integer >= 2, got {robot_sdf_tables!r}")
             self.robot_sdf_tables = robot_sdf_tables
+        # a new tables setting without a pairs setting takes the default pairs for it (tables=0: exact throughout)
+        self._set_pairs(robot_sdf_pairs if robot_sdf_pairs is not None or robot_sdf_tables is not None
+                        else self.robot_sdf_pairs)
         if check is None:
             return SAMPStepPolicy(self)
         from samp.policy.checked import CheckConfig, CheckedPolicy

@@ -98,10 +98,11 @@ class SelfDistances:
         self.table_lo, self.table_span = lo[joint], (hi - lo)[joint]
 
     def query(self, q: torch.Tensor, points: torch.Tensor, poses: torch.Tensor,
-              needed: torch.Tensor | None = None) -> torch.Tensor:
+              needed: torch.Tensor | bool | None = None) -> torch.Tensor:
         """q (B, n), T_q(P) (B, M, 3) and `robot.link_poses(q)` -> (B, M) distances [m], no gradients.
         `needed` (B, M) bool: the network pairs are evaluated at those points only; elsewhere the result is
-        the rigid and table part, an upper bound of the distance."""
+        the rigid and table part, an upper bound of the distance. `needed=False`: at no point (the rigid
+        and table part everywhere)."""
         sdf, M = self.sdf, len(self.base)
         B = len(q)
         out = self.base.repeat(B, 1)  # a copy: the scatters below must not touch the cached values
@@ -113,16 +114,17 @@ class SelfDistances:
             rows = torch.arange(len(self.table_point), device=q.device)
             v = self.table[rows, i] * (1 - f) + self.table[rows, i + 1] * f
             out.view(-1).scatter_reduce_(0, (offset + self.table_point).view(-1), v.view(-1), "amin")
-        if needed is None:
+        if needed is False:
+            pass
+        elif needed is None:
             u = sdf.link_coords(points, q, poses)  # (B, M, L, 3)
             bound = (u - u.clamp(-1, 1)).norm(dim=-1) * sdf.scales  # (B, M, L)
             b, m, l = torch.nonzero(self.network_pairs & ((bound < out[:, :, None]) | (bound == 0)), as_tuple=True)
             if len(b):
                 out.view(-1).scatter_reduce_(0, b * M + m, sdf._pair_values(u[b, m, l], l), "amin")
-        else:  # the same, for the needed points only
+        else:  # the same, for the needed points only (their coordinates are the full query's, to the bit)
             rb, rm = torch.nonzero(needed, as_tuple=True)
-            R, t = poses[rb, :, :3, :3], poses[rb, :, :3, 3]  # (R, L, 3, 3), (R, L, 3)
-            u = (torch.einsum("rlji,rlj->rli", R, points[rb, rm][:, None] - t) - sdf.centres) / sdf.scales[:, None]
+            u = sdf.link_coords(points, q, poses)[rb, rm]  # (R, L, 3): one batched product is cheap at any B
             bound = (u - u.clamp(-1, 1)).norm(dim=-1) * sdf.scales  # (R, L)
             r, l = torch.nonzero(self.network_pairs[rm] & ((bound < out[rb, rm][:, None]) | (bound == 0)),
                                  as_tuple=True)

@@ -82,9 +82,13 @@ class RobotSDF(nn.Module):
         """(B, N, 3) base-frame points, (B, n) -> (B, N, L, 3) points in every link's normalised box.
         `poses`: the links' `robot.link_poses(q)`, when the caller has them already."""
         T = self.robot.link_poses(q) if poses is None else poses  # (B, L, 4, 4)
+        (B, L), N = T.shape[:2], points.shape[1]
         R, t = T[..., :3, :3], T[..., :3, 3]
-        local = torch.einsum("blji,bnlj->bnli", R, points[:, :, None, :] - t[:, None])  # R^T (p - t)
-        return (local - self.centres) / self.scales[:, None]
+        # u_l = (R_l^T (p - t_l) - c_l) / s_l = p W_l + b_l: every link's box in one batched product over the points,
+        # W_l = R_l / s_l (as row vectors: p R_l = (R_l^T p)^T) and b_l = -(t_l R_l + c_l) / s_l.
+        W = (R / self.scales[:, None, None]).transpose(1, 2).reshape(B, 3, 3 * L)
+        b = -((t[..., None, :] @ R)[..., 0, :] + self.centres) / self.scales[:, None]  # (B, L, 3)
+        return torch.baddbmm(b.reshape(B, 1, 3 * L), points, W).view(B, N, L, 3)
 
     def _pair_values(self, u: torch.Tensor, link: torch.Tensor) -> torch.Tensor:
         """(P, 3) normalised points, (P,) link -> (P,) distances [m] with the out-of-box residual."""
@@ -138,14 +142,15 @@ class RobotSDF(nn.Module):
 
     def at_robot_points(self, q: torch.Tensor, points: torch.Tensor | None = None,
                         poses: torch.Tensor | None = None, tables: int = 0,
-                        needed: torch.Tensor | None = None) -> torch.Tensor:
+                        needed: torch.Tensor | bool | None = None) -> torch.Tensor:
         """q (B, n) -> (B, M) the robot SDF at the robot's own points posed at q, T_q(P): the values of
         `query(robot.transform_points(q), q)`, for a fraction of the work (`samp.robot_sdf.robot_points`).
 
         `points` and `poses` are `robot.transform_points(q)` and `robot.link_poses(q)` when the caller has
         them. `tables` K > 0 reads the pairs one joint apart from tables of K angles (an approximation of
         the network); 0 is exact. `needed` (B, M) bool: only those values are wanted (the others are upper
-        bounds of theirs), e.g. where a loss term is active. No gradients (the robot SDF is frozen wherever a
+        bounds of theirs), e.g. where a loss term is active; False: at no point, so that only the pairs that
+        the tables and the rigid part cover count (an approximation, `PolicySystem`'s robot_sdf_pairs=near). No gradients (the robot SDF is frozen wherever a
         policy uses it).
         """
         with torch.no_grad():

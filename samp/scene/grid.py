@@ -7,6 +7,7 @@ Anchors are `n_e` points per axis (inclusive linspace over the bounds), array in
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 
@@ -54,8 +55,21 @@ def anchor_grid(scene: Scene, n_e: int, bounds=None, cache: bool = True) -> torc
 
 def grid_coords(points: torch.Tensor, bounds) -> torch.Tensor:
     """(..., 3) base-frame points -> (..., 3) grid_sample coordinates in [-1, 1], ordered (z, y, x)."""
-    lo, hi = (torch.as_tensor(b, dtype=points.dtype, device=points.device) for b in check_bounds(bounds))
-    return (2 * (points - lo) / (hi - lo) - 1).flip(-1)
+    try:
+        key = tuple(tuple(float(v) for v in row) for row in (bounds.tolist() if torch.is_tensor(bounds) else bounds))
+    except (TypeError, ValueError):
+        key = check_bounds(bounds)  # raises, saying what bounds must be
+    lo, span = _checked(key)
+    lo, span = (torch.tensor(v, dtype=points.dtype, device=points.device) for v in (lo, span))
+    return (2 * (points - lo) / span - 1).flip(-1)
+
+
+@functools.lru_cache(maxsize=256)
+def _checked(bounds: tuple) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Bounds as float tuples -> checked (lo, hi - lo), once per bounds (a policy step samples the same ones
+    every call)."""
+    lo, hi = check_bounds(bounds)
+    return lo, tuple(b - a for a, b in zip(lo, hi))
 
 
 def sample_grid(grid: torch.Tensor, points: torch.Tensor, bounds) -> torch.Tensor:

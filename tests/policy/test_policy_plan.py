@@ -70,6 +70,39 @@ def test_step_is_the_network_fed_by_the_generic_robot_sdf_query(run_dir):
     assert torch.allclose(got, denormalize(u, system.limits), atol=1e-5)
 
 
+def test_near_pairs_feed_the_rigid_and_table_part_in_rollouts_only(run_dir):
+    """robot_sdf_pairs=near: a rollout step is the network fed by the robot SDF without the pairs two or more
+    joints apart, the same values as the `needed` mask path asking for no point (an upper bound of the
+    distances over every pair with the same tables); training keeps every pair; bad settings are refused."""
+    policy = load_policy(run_dir, robot_sdf_pairs="near")
+    system = policy.system
+    scene, _ = _problem(policy)
+    env = policy._environment(scene)
+    policy.reset(env)
+    lo, hi = system.robot.joint_limits.float().T
+    q, q_goal = (lo + (hi - lo) * torch.rand(2, 5, 7, generator=torch.Generator().manual_seed(1))).unbind(0)
+    scenes = torch.zeros(5, dtype=torch.long)
+    got = policy.step(q, q_goal, EnvBatch(env.grids, env.bounds, scenes))
+    with torch.no_grad():
+        points = system.robot.transform_points(q)
+        near = system.robot_sdf.at_robot_points(q, tables=system.robot_sdf_tables,
+                                                needed=torch.zeros(5, len(system.robot.points), dtype=torch.bool))
+        every = system.robot_sdf.at_robot_points(q, tables=system.robot_sdf_tables)  # the same tables, every pair
+        u = system.net(normalize(q, system.limits), normalize(q_goal, system.limits), points, near,
+                       system.net.encode_scenes(env.grids), scenes, system.bounds, n_e=system.n_e)
+    assert torch.allclose(got, denormalize(u, system.limits), atol=1e-5)
+    assert (near >= every).all() and (near > every + 1e-3).any()  # the skipped pairs mattered here
+    system.train()
+    try:
+        assert torch.allclose(system.robot_features(q)[1], system.robot_sdf.at_robot_points(q, tables=system.robot_sdf_tables))
+    finally:
+        system.eval()
+    with pytest.raises(ValueError, match="robot_sdf_tables >= 2"):
+        load_policy(run_dir, robot_sdf_tables=0, robot_sdf_pairs="near")
+    with pytest.raises(ValueError, match="robot_sdf_pairs must be one of"):
+        load_policy(run_dir, robot_sdf_pairs="far")
+
+
 def test_plan_replays_step_by_step_and_judges_the_goal_like_the_evaluation(run_dir):
     policy = load_policy(run_dir)
     scene, problem = _problem(policy)

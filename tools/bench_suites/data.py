@@ -36,7 +36,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--trajectories", type=int, default=25, help="data: problems per scene")
     ap.add_argument("--baseline-src", type=Path, default=None,
                     help="data, policy: a checkout of samp to compare with (data's default: --baseline-rev in a "
-                    "temporary git worktree; policy: its training step, with --robot-sdf)")
+                    "temporary git worktree; policy: the --policy-run step at B = 1, and with --robot-sdf the training step)")
     ap.add_argument("--baseline-rev", default="47fc6b1",
                     help="data: the commit measured as the baseline when --baseline-src is not given ('none': skip it)")
     ap.add_argument("--detour-share", type=float, default=None,

@@ -9,6 +9,9 @@ step times that hold. Stages of a step (`_stages`): FK of the links, posing the 
 at them (tables, and the exact network for comparison), sampling the scene's feature volume, the PointNet,
 the other MLPs; "other" is the rest of the step call (normalisation, argument passing, Python).
 
+--baseline-src DIR (an older checkout) times, each in its own process in the same run: with --policy-run, that
+policy's B = 1 step (`rollout_step.py`); with --robot-sdf, a training step (`train_step.py`).
+
 Reads --anchors (added by the scene suite), --policy-run (eval suite), --baseline-src (data suite); adds --robot-sdf
 and --tables.
 """
@@ -52,10 +55,11 @@ def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
     from samp.policy.step import SAMPStepPolicy
 
     robot, rsdf, net, tables = system.robot, system.robot_sdf, system.net, system.robot_sdf_tables
+    needed = False if system.robot_sdf_pairs == "near" else None
     with torch.inference_mode():
         poses = robot.link_poses(q)
         points = robot.transform_points(q, poses)
-        d = rsdf.at_robot_points(q, points, poses, tables)
+        d = rsdf.at_robot_points(q, points, poses, tables, needed)
         u_t, u_g = normalize(q, system.limits), normalize(q_goal, system.limits)
         box = net.env.feature_bounds(bounds, system.n_e, features.shape[-1])
         env = sample_by_scene(features, scene, points, box).transpose(1, 2)
@@ -64,19 +68,21 @@ def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
         parts = {
             "fk (link poses)": _median_ms(lambda: robot.link_poses(q)),
             "robot points": _median_ms(lambda: robot.transform_points(q, poses)),
-            "robot SDF": _median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables)),
+            "robot SDF": _median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables, needed)),
             "feature sampling": _median_ms(lambda: sample_by_scene(features, scene, points, box)),
             "PointNet": _median_ms(lambda: net.point_mlp(torch.cat([points, d[..., None]], dim=-1)).amax(dim=1)),
             "MLPs": _median_ms(lambda: (net.env_mlp(torch.cat([env, d[..., None]], dim=-1).reshape(n, -1)),
                                         net.config_mlp(goal_features(u_t, u_g, net.cfg.goal_features)),
                                         net.fusion(q.new_zeros(n, width)))),
         }
+        every = _median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables)) if needed is False else parts["robot SDF"]
         exact = _median_ms(lambda: rsdf.at_robot_points(q, points, poses, 0)) if tables else parts["robot SDF"]
     policy = SAMPStepPolicy(system)
     env_batch = _env(system, features.shape[0], scene)
     policy.reset(env_batch)
     step = _median_ms(lambda: policy.step(q, q_goal, env_batch))
-    return {**parts, "other": step - sum(parts.values()), "step": step, "robot SDF exact": exact}
+    return {**parts, "other": step - sum(parts.values()), "step": step, "robot SDF all pairs": every,
+            "robot SDF exact": exact}
 
 
 def _env(system, scenes: int, scene_index: torch.Tensor):
@@ -149,19 +155,43 @@ def _time_training(system, robot, scenes: list, g: torch.Generator, device: torc
     return t_grouped, t_plain
 
 
-def _step_in_process(src: str, args, *extra: str) -> dict:
-    """`train_step.py` run with `src`'s samp in a fresh process (its result line, parsed)."""
+def _in_process(script: str, src: str, *extra: str) -> dict:
+    """`script` (beside this file) run with `src`'s samp in a fresh process (its result line, parsed)."""
     import json
     import subprocess
     import sys
     from pathlib import Path
 
-    cmd = [sys.executable, str(Path(__file__).with_name("train_step.py")), "--src", src, "--robot-sdf", args.robot_sdf,
-           "--n-e", str(args.anchors[0]), *extra]
-    out = subprocess.run(cmd, capture_output=True, text=True)
+    out = subprocess.run([sys.executable, str(Path(__file__).with_name(script)), "--src", src, *extra],
+                         capture_output=True, text=True)
     if out.returncode:
-        raise RuntimeError(f"timing a training step of {src} failed:\n{out.stderr[-2000:]}")
+        raise RuntimeError(f"{script} with {src} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _step_in_process(src: str, args, *extra: str) -> dict:
+    """A training step of `src`'s samp (`train_step.py`)."""
+    return _in_process("train_step.py", src, "--robot-sdf", args.robot_sdf, "--n-e", str(args.anchors[0]), *extra)
+
+
+def _rollout_against_checkout(args, metrics: dict) -> list[list]:
+    """The --policy-run policy's B = 1 step with this checkout against --baseline-src, each in its own
+    process, alternately three times (`rollout_step.py`; the fastest block of each), and the largest
+    difference between their first predictions (0 for a change that is exact)."""
+    from pathlib import Path
+
+    here = str(Path(__file__).resolve().parents[2])
+    runs = {src: [] for src in (here, str(args.baseline_src))}
+    for _ in range(3):
+        for src in runs:
+            runs[src].append(_in_process("rollout_step.py", src, "--run", str(args.policy_run)))
+    new, old = (min(r, key=lambda x: x["step_ms"]) for r in runs.values())
+    diff = max(abs(a - b) for a, b in zip(new["q_next"], old["q_next"]))
+    metrics.update({"checkout/step_b1_ms": new["step_ms"], "checkout/baseline_step_b1_ms": old["step_ms"],
+                    "checkout/step_speedup": old["step_ms"] / new["step_ms"], "checkout/q_next_max_diff": diff})
+    return [[f"step B=1 ({new['threads']} threads), vs {args.baseline_src}", f"{new['step_ms']:.2f} ms",
+             f"{old['step_ms']:.2f} ms", f"{old['step_ms'] / new['step_ms']:.2f}x"],
+            ["  largest difference of the first predictions", f"{diff:.1e} rad", "", ""]]
 
 
 def _against_checkout(args, metrics: dict) -> list[list]:
@@ -207,7 +237,7 @@ def run(args) -> tuple[dict, list[list]]:
     for label, system, n_e in _systems(args, device):
         robot = system.robot
         if args.tables is not None:
-            system.robot_sdf_tables = args.tables
+            system.planner(robot_sdf_tables=args.tables)  # sets the tables, and the pairs they allow (0: exact)
         grids = torch.stack([s.anchor_grid(n_e) for s in scenes])
         if system.binding is None or system.grids is None:
             bounds = system.bounds or scenes[0].bounds
@@ -228,13 +258,14 @@ def run(args) -> tuple[dict, list[list]]:
         metrics.update({f"{key}/step_b1_ms": stages["step"], f"{key}/generic_step_b1_ms": generic,
                         f"{key}/step_speedup": generic / stages["step"], f"{key}/step_b{B_BATCHED}_ms": batched,
                         f"{key}/batched_steps_per_s": B_BATCHED * 1e3 / batched,
-                        f"{key}/robot_sdf_tables": system.robot_sdf_tables,
+                        f"{key}/robot_sdf_tables": system.robot_sdf_tables, f"{key}/robot_sdf_pairs": system.robot_sdf_pairs,
                         **{f"{key}/stage/{k}_ms": v for k, v in stages.items()}})
         rows.append([f"{label}, n_e={n_e}: step B=1", f"{stages['step']:.2f} ms", f"{generic:.2f} ms (generic)",
                      f"{generic / stages['step']:.1f}x"])
         for k, v in stages.items():
             if k != "step":
-                rows.append([f"  {k}" + (f" (tables K={system.robot_sdf_tables})" if k == "robot SDF" else ""),
+                rows.append([f"  {k}" + (f" (tables K={system.robot_sdf_tables}, {system.robot_sdf_pairs} pairs)"
+                                         if k == "robot SDF" else ""),
                              f"{v:.3f} ms", "", ""])
         rows.append([f"  step B={B_BATCHED} (one call, {len(scenes)} scenes)", f"{batched:.1f} ms",
                      f"{B_BATCHED * 1e3 / batched:.0f} problem-steps/s", ""])
@@ -244,7 +275,9 @@ def run(args) -> tuple[dict, list[list]]:
                             f"{key}/grouped_speedup": t_plain / t_grouped})
             rows.append([f"  train (B={B})", f"{B / t_grouped:.0f} samples/s", f"{B / t_plain:.0f} samples/s (random)",
                          f"{t_plain / t_grouped:.2f}x"])
-    if args.baseline_src:
+    if args.baseline_src and args.policy_run:
+        rows += _rollout_against_checkout(args, metrics)
+    if args.baseline_src and (args.robot_sdf or not args.policy_run):
         rows += _against_checkout(args, metrics)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     metrics["peak_rss_mb"] = peak

@@ -71,7 +71,7 @@ def write_report(args: argparse.Namespace, metrics: dict) -> None:
               "config": {k: v for k, v in vars(args).items() if k not in ("out", "suite")}}
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(report, indent=2))
+        args.out.write_text(json.dumps(report, indent=2, default=str))  # paths as strings
         print(f"wrote {args.out}")
 
 

@@ -103,6 +103,29 @@ def test_near_pairs_feed_the_rigid_and_table_part_in_rollouts_only(run_dir):
         load_policy(run_dir, robot_sdf_pairs="far")
 
 
+def test_bench_rollout_step_script_times_the_policys_own_step(run_dir):
+    """tools/bench_suites/rollout_step.py (what `bench.py policy --baseline-src` runs per checkout): its
+    reported first prediction is this policy's step on the same inputs, computed here in-process."""
+    import json
+
+    from samp.scene import generate_scene
+
+    env_vars = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
+    out = subprocess.run([sys.executable, str(REPO / "tools" / "bench_suites" / "rollout_step.py"), "--src", str(REPO),
+                          "--run", str(run_dir), "--blocks", "2"], capture_output=True, text=True, timeout=300,
+                         env=env_vars, cwd=REPO)
+    assert out.returncode == 0, out.stderr[-3000:]
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert 0 < report["step_ms"] <= report["step_ms_median"]
+    policy = load_policy(run_dir)
+    env = policy._environment(generate_scene("shelf", seed=7, bounds=policy.system.bounds))
+    policy.reset(env)
+    lo, hi = policy.robot.joint_limits.to(policy.robot.dtype).T
+    qs = lo + (hi - lo) * torch.rand(2, 7, generator=torch.Generator().manual_seed(0), dtype=policy.robot.dtype)
+    expected = policy.step(qs[:1], qs[1:2], env)[0]
+    assert torch.allclose(torch.tensor(report["q_next"], dtype=expected.dtype), expected, atol=1e-6)
+
+
 def test_plan_replays_step_by_step_and_judges_the_goal_like_the_evaluation(run_dir):
     policy = load_policy(run_dir)
     scene, problem = _problem(policy)

@@ -31,7 +31,7 @@ def main(argv=None) -> int:
     from samp.scene import generate_scene
 
     policy = load_policy(args.run, device="cpu")
-    env = policy._environment(generate_scene("shelf", seed=7))
+    env = policy._environment(generate_scene("shelf", seed=7, bounds=policy.system.bounds))
     policy.reset(env)
     lo, hi = policy.robot.joint_limits.to(policy.robot.dtype).T
     qs = lo + (hi - lo) * torch.rand(21, policy.robot.dof, generator=torch.Generator().manual_seed(0),

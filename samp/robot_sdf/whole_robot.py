@@ -84,8 +84,8 @@ class RobotSDF(nn.Module):
         T = self.robot.link_poses(q) if poses is None else poses  # (B, L, 4, 4)
         (B, L), N = T.shape[:2], points.shape[1]
         R, t = T[..., :3, :3], T[..., :3, 3]
-        # u_l = (R_l^T (p - t_l) - c_l) / s_l = p W_l + b_l: every link's box in one batched product over the points,
-        # W_l = R_l / s_l (as row vectors: p R_l = (R_l^T p)^T) and b_l = -(t_l R_l + c_l) / s_l.
+        # u_l = (R_l^T (p - t_l) - c_l) / s_l = p W_l + b_l, every link's box in one batched product over the
+        # points: W_l = R_l / s_l (as row vectors, p R_l = (R_l^T p)^T) and b_l = -(t_l R_l + c_l) / s_l.
         W = (R / self.scales[:, None, None]).transpose(1, 2).reshape(B, 3, 3 * L)
         b = -((t[..., None, :] @ R)[..., 0, :] + self.centres) / self.scales[:, None]  # (B, L, 3)
         return torch.baddbmm(b.reshape(B, 1, 3 * L), points, W).view(B, N, L, 3)
@@ -150,8 +150,8 @@ class RobotSDF(nn.Module):
         them. `tables` K > 0 reads the pairs one joint apart from tables of K angles (an approximation of
         the network); 0 is exact. `needed` (B, M) bool: only those values are wanted (the others are upper
         bounds of theirs), e.g. where a loss term is active; False: at no point, so that only the pairs that
-        the tables and the rigid part cover count (an approximation, `PolicySystem`'s robot_sdf_pairs=near). No gradients (the robot SDF is frozen wherever a
-        policy uses it).
+        the tables and the rigid part cover count (an approximation, `PolicySystem`'s robot_sdf_pairs=near).
+        No gradients (the robot SDF is frozen wherever a policy uses it).
         """
         with torch.no_grad():
             poses = self.robot.link_poses(q) if poses is None else poses

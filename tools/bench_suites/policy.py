@@ -75,7 +75,8 @@ def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
                                         net.config_mlp(goal_features(u_t, u_g, net.cfg.goal_features)),
                                         net.fusion(q.new_zeros(n, width)))),
         }
-        every = _median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables)) if needed is False else parts["robot SDF"]
+        every = (_median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables)) if needed is False
+                 else parts["robot SDF"])
         exact = _median_ms(lambda: rsdf.at_robot_points(q, points, poses, 0)) if tables else parts["robot SDF"]
     policy = SAMPStepPolicy(system)
     env_batch = _env(system, features.shape[0], scene)
@@ -258,7 +259,8 @@ def run(args) -> tuple[dict, list[list]]:
         metrics.update({f"{key}/step_b1_ms": stages["step"], f"{key}/generic_step_b1_ms": generic,
                         f"{key}/step_speedup": generic / stages["step"], f"{key}/step_b{B_BATCHED}_ms": batched,
                         f"{key}/batched_steps_per_s": B_BATCHED * 1e3 / batched,
-                        f"{key}/robot_sdf_tables": system.robot_sdf_tables, f"{key}/robot_sdf_pairs": system.robot_sdf_pairs,
+                        f"{key}/robot_sdf_tables": system.robot_sdf_tables,
+                        f"{key}/robot_sdf_pairs": system.robot_sdf_pairs,
                         **{f"{key}/stage/{k}_ms": v for k, v in stages.items()}})
         rows.append([f"{label}, n_e={n_e}: step B=1", f"{stages['step']:.2f} ms", f"{generic:.2f} ms (generic)",
                      f"{generic / stages['step']:.1f}x"])

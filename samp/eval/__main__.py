@@ -160,13 +160,16 @@ def _evaluate(overrides: list[str]) -> Path:
     if run is not None:
         find_checkpoint(run.path)  # a missing checkpoint fails before any dataset work
     ds = _open_dataset(cfg, run)
+    bench = None
     if ds is None:  # the benchmark alone: its manifest names the robot
         bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
         if bench is None:
             raise ValueError("nothing to evaluate: splits=[] and benchmark=null")
+    # (`ds or bench` would skip a dataset without demonstrations: an empty Dataset is falsy)
+    manifest = (ds if ds is not None else bench).manifest
     if run is not None:
-        check_robot(run, (ds or bench).manifest)
-    planner = _planner(cfg, run, (ds or bench).manifest)  # a bad checkpoint fails before a benchmark is built
+        check_robot(run, manifest)
+    planner = _planner(cfg, run, manifest)  # a bad checkpoint fails before a benchmark is built
     if ds is not None:
         bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
     sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot if hasattr(planner, "robot")

@@ -199,3 +199,28 @@ def test_the_composed_config_is_re_merged_strictly():
         from samp.eval.benchmark import benchmark_spec
 
         benchmark_spec("nowhere")
+
+
+@pytest.fixture(scope="module")
+def test_scenes_only(tmp_path_factory, _isolated_cache):
+    """A dataset of unseen scenes and their evaluation problems only, no demonstrations (as a benchmark is)."""
+    from samp.data import generate
+
+    spec = {"name": "test_only", "robot": "panda", "seed": 5, "train_scenes": 0, "val_scenes": 0, "test_scenes": 1,
+            "trajectories_per_scene": 0, "eval_problems_per_scene": 2, "generators": ["tabletop"], "resolutions": [12]}
+    return generate(spec, root=tmp_path_factory.mktemp("test_only"), progress=False)
+
+
+def test_a_dataset_without_demonstrations_can_be_evaluated(test_scenes_only, tmp_path, capsys, fake_policy_package,
+                                                           panda):
+    """A dataset with no demonstrations (len 0, so falsy) is still the dataset evaluated, not skipped for a
+    benchmark that was switched off (this once raised UnboundLocalError)."""
+    from samp.data import open_dataset
+
+    problems = len(open_dataset(test_scenes_only).eval_problems)
+    run = _run_folder(tmp_path, test_scenes_only, asset_hash=panda.asset_hash)
+    args = [f"run={run}", f"dataset={test_scenes_only}", "splits=[test]", "problems=null", "record=false",
+            "benchmark=null"]
+    assert main(args) == 0, _error(capsys)
+    report = json.loads((run / "eval" / METRICS_JSON).read_text())
+    assert problems >= 1 and report["groups"]["test"]["problems"] == problems

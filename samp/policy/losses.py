@@ -1,11 +1,15 @@
 """The policy's training losses, exactly as DESIGN section 4 ("Losses") defines them.
 
     L_match  = mean |T_q^(P) - T_q(P)| + mean (T_q^(P) - T_q(P))^2        (points in metres)
-    L_coll   = (1/M) sum_i w_i max(0, d_margin - C_i),   w_i = exp(-(d_i - d_target) / tau)
+    L_coll   = (1/M) sum_i w_i max(0, m_i - C_i),   w_i = exp(-(d_i - d_target) / tau)
     L_config = || q^_{t+1} - q_{t+1} ||^2                                   (radians, summed over joints)
     L        = lambda_1 L_match + lambda_2 L_coll + lambda_3 L_config
 
-C_i is the environment SDF at the i-th posed point of the prediction, trilinear from the anchor grid;
+C_i is the environment SDF at the i-th posed point of the prediction, trilinear from the anchor grid; the
+margin m_i is d_margin (DESIGN's definition, `margin="fixed"`) or, with `margin="demo"`, min(d_margin, C*_i)
+for C*_i the environment SDF at the same point of the demonstrated next configuration: a prediction is
+asked to keep as clear as the expert did, up to d_margin, so that a demonstration that must come close to an
+obstacle (a goal inside a cabinet) is not pushed away from where it ends;
 d_i is the robot SDF at the same point, computed from the predicted joint angles in radians, and each
 point gets its own weight (the authors' code multiplied mean weight by mean hinge instead, and fed the
 robot SDF normalised angles; both are fixed here). The weights are treated as constants: they say how
@@ -37,6 +41,14 @@ class LossConfig:
     d_margin: float = 0.09  # metres
     d_target: float = 0.015  # metres
     tau: float = 1.0  # temperature of the per-point weights (1: the paper's)
+    margin: str = "fixed"  # fixed: d_margin everywhere (the paper's) | demo: min(d_margin, the demonstration's clearance)
+
+    def __post_init__(self):
+        if self.margin not in MARGINS:
+            raise ValueError(f"loss.margin must be one of {MARGINS}, got {self.margin!r}")
+
+
+MARGINS = ("fixed", "demo")
 
 
 def match_loss(pred_points: torch.Tensor, true_points: torch.Tensor) -> torch.Tensor:
@@ -46,16 +58,24 @@ def match_loss(pred_points: torch.Tensor, true_points: torch.Tensor) -> torch.Te
 
 
 def collision_loss(pred_points: torch.Tensor, grids: torch.Tensor, scene_index: torch.Tensor, bounds,
-                   robot_sdf: torch.Tensor | Callable[[torch.Tensor], torch.Tensor], cfg: LossConfig) -> torch.Tensor:
+                   robot_sdf: torch.Tensor | Callable[[torch.Tensor], torch.Tensor], cfg: LossConfig,
+                   true_points: torch.Tensor | None = None) -> torch.Tensor:
     """pred_points (B, M, 3); grids (S, n, n, n) the scenes' anchor grids and scene_index (B,) into them;
     robot_sdf (B, M) metres, or a function of the (B, M) mask of points where the hinge is active that gives
-    them (the others may hold any finite value: their term is zero) -> scalar.
+    them (the others may hold any finite value: their term is zero); true_points (B, M, 3) the demonstrated
+    next configuration's points, read with `cfg.margin == "demo"` -> scalar.
 
     The hinge is zero wherever a point is farther than d_margin from every obstacle, and on demonstrations
     that keep clear of obstacles that is most points (about 99 % on the quickstart data), so asking for the
     robot SDF only where it is active is exact and saves most of a query."""
     env = sample_by_scene(grids[:, None], scene_index, pred_points, bounds)[:, 0]  # (B, M)
-    hinge = torch.relu(cfg.d_margin - env)
+    margin = cfg.d_margin
+    if cfg.margin == "demo":
+        if true_points is None:
+            raise ValueError('loss.margin="demo" needs the demonstrated points (true_points)')
+        demo = sample_by_scene(grids[:, None], scene_index, true_points, bounds)[:, 0]  # (B, M)
+        margin = demo.clamp(max=cfg.d_margin)
+    hinge = torch.relu(margin - env)
     if callable(robot_sdf):
         robot_sdf = robot_sdf(hinge.detach() > 0)
     weights = torch.exp(-(robot_sdf.detach() - cfg.d_target) / cfg.tau)
@@ -108,7 +128,7 @@ class LossTerm:
 LOSS_TERMS = (
     LossTerm("match", "match", lambda s, c: match_loss(s.pred_points, s.true_points)),
     LossTerm("coll", "collision", lambda s, c: collision_loss(s.pred_points, s.grids, s.scene, s.bounds,
-                                                              s.robot_sdf_at_prediction, c)),
+                                                              s.robot_sdf_at_prediction, c, s.true_points)),
     LossTerm("config", "config", lambda s, c: config_loss(s.q_hat, s.q_next)),
 )
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
 from samp.policy import LossConfig, collision_loss, config_loss, match_loss
@@ -41,6 +42,28 @@ def test_collision_loss_weights_each_point_and_uses_the_environment_sdf():
     assert math.isclose(float(expected), float(w[0] * (0.09 - exact[0]) / 2), rel_tol=1e-6)  # the far point adds 0
     # Per-point weighting differs from the authors' mean(weights) * mean(hinge):
     assert abs(float(got) - float(w.mean() * torch.relu(0.09 - exact).mean())) > 1e-3
+
+
+def test_demo_margin_asks_only_for_the_demonstrations_clearance_up_to_d_margin():
+    """margin="demo": m_i = min(d_margin, C*_i), C*_i the SDF at the demonstrated point. On a linear SDF
+    (sdf = z - 0.5, exact under trilinear interpolation) with hand-computed hinges: a demonstration 2 cm
+    from the obstacle asks the prediction (1 cm) for 1 cm more, not the fixed 8 cm; one 20 cm away asks
+    for d_margin; a prediction clearer than its demonstration costs nothing."""
+    z = torch.linspace(0.0, 1.0, 5)
+    grid = (z - 0.5).expand(5, 5, 5).clone()[None]
+    bounds = ((-1.0, -1.0, 0.0), (1.0, 1.0, 1.0))
+    pred = torch.tensor([[[0.0, 0.0, 0.51], [0.0, 0.0, 0.52], [0.0, 0.0, 0.56]]])  # clearance 1, 2 and 6 cm
+    true = torch.tensor([[[0.0, 0.0, 0.52], [0.0, 0.0, 0.70], [0.0, 0.0, 0.53]]])  # clearance 2, 20 and 3 cm
+    d_robot = torch.full((1, 3), 0.015)  # weight 1
+    demo = LossConfig(d_margin=0.09, margin="demo")
+    got = collision_loss(pred, grid, torch.tensor([0]), bounds, d_robot, demo, true)
+    torch.testing.assert_close(got, torch.tensor((0.01 + 0.07 + 0.0) / 3), rtol=0, atol=1e-6)
+    fixed = collision_loss(pred, grid, torch.tensor([0]), bounds, d_robot, LossConfig(d_margin=0.09), true)
+    torch.testing.assert_close(fixed, torch.tensor((0.08 + 0.07 + 0.03) / 3), rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="true_points"):
+        collision_loss(pred, grid, torch.tensor([0]), bounds, d_robot, demo)
+    with pytest.raises(ValueError, match="loss.margin must be one of"):
+        LossConfig(margin="adaptive")
 
 
 def test_collision_loss_gradient_pushes_points_out():

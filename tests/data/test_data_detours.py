@@ -98,3 +98,13 @@ def test_a_spec_without_detours_keeps_its_config_hash():
     assert "detour_share" not in load_spec(plain).resolved()
     assert load_spec(plain).config_hash() == load_spec({**plain, "detour_share": 0.0}).config_hash()
     assert load_spec(plain).config_hash() != load_spec(SPEC).config_hash()
+
+
+def test_the_confirmation_benchmark_is_bench_unseens_recipe_on_other_scenes():
+    """`benchmark=confirm` differs from the standing benchmark only where it must (its name, seed and scene
+    namespace), so what it confirms is the same kind of measurement on scenes no one chose anything on."""
+    from samp.data.spec import load_spec
+    from samp.eval.benchmark import benchmark_spec
+
+    unseen, confirm = (load_spec(benchmark_spec(name)).resolved() for name in ("unseen", "confirm"))
+    assert {k for k in {*unseen, *confirm} if unseen.get(k) != confirm.get(k)} == {"name", "seed", "scene_namespace"}

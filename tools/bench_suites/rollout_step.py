@@ -1,11 +1,13 @@
 """One policy step at B = 1, timed, in a process of its own: `python tools/bench_suites/rollout_step.py --src DIR
---run RUN_DIR` prints JSON {"step_ms", "step_ms_median", "threads", "q_next"} for the samp package found in DIR.
+--run RUN_DIR` prints JSON {"step_ms", "step_ms_median", "batch_ms", "threads", "q_next"} for the samp package found
+in DIR.
 
 The policy suite runs it with this checkout and with --baseline-src (an older checkout, e.g. a `git worktree`
 of the commit to compare against), alternately, so both are timed in the same run on the same problems,
 through the API both share: load_policy(run), plan's scene-to-environment step, reset and step. `step_ms` is
 the fastest of several blocks of 20 steps (per step): the least disturbed by other work on the machine;
-`q_next` (the first problem's prediction) shows whether the two checkouts compute the same step.
+`batch_ms` is the fastest of ten calls stepping 100 problems at once (one scene); `q_next` (the first problem's
+prediction) shows whether the two checkouts compute the same step.
 """
 
 from __future__ import annotations
@@ -43,7 +45,18 @@ def main(argv=None) -> int:
         for i in range(20):
             policy.step(qs[i:i + 1], qs[i + 1:i + 2], env)
         blocks.append((time.perf_counter() - t0) / 20 * 1e3)
-    print(json.dumps({"step_ms": min(blocks), "step_ms_median": statistics.median(blocks),
+    from samp.policy.interface import EnvBatch
+
+    many = lo + (hi - lo) * torch.rand(101, policy.robot.dof, generator=torch.Generator().manual_seed(1),
+                                       dtype=policy.robot.dtype)
+    batch_env = EnvBatch(env.grids, env.bounds, torch.zeros(100, dtype=torch.long))
+    policy.reset(batch_env)
+    batched = []
+    for _ in range(11):
+        t0 = time.perf_counter()
+        policy.step(many[:100], many[1:], batch_env)
+        batched.append((time.perf_counter() - t0) * 1e3)
+    print(json.dumps({"step_ms": min(blocks), "step_ms_median": statistics.median(blocks), "batch_ms": min(batched[1:]),
                       "threads": torch.get_num_threads(), "q_next": first[0].tolist()}))
     return 0
 

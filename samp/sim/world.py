@@ -300,7 +300,9 @@ class World:
             return touch
         a, b = self._self_pairs[s].T
         Ta, Tb = T[j, self.links.part_links[a]], T[j, self.links.part_links[b]]  # (m, 4, 4)
-        gap = np.maximum(self._frame_gap(Ta, Tb, a, b), self._frame_gap(Tb, Ta, b, a))
+        gap = self._frame_gap(Ta, Tb, a, b)
+        rest = np.flatnonzero(gap <= SELF_SLACK)  # not yet apart: try the other part's frame
+        gap[rest] = np.maximum(gap[rest], self._frame_gap(Tb[rest], Ta[rest], b[rest], a[rest]))
         touch = touch.copy()
         touch[j[gap > SELF_SLACK], s[gap > SELF_SLACK]] = False
         return touch

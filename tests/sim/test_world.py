@@ -318,6 +318,20 @@ def test_link_frame_boxes_drop_only_pairs_pybullet_finds_apart(robots, name):
             assert d > SELF_SLACK / 2, f"{name}: dropped pair {a}-{b} at configuration {j} is {d:.5f} m apart"
 
 
+@pytest.mark.parametrize("name", ["panda", "xarm6"])
+def test_part_boxes_of_a_big_batch_equal_those_of_one_configuration_at_a_time(robots, name):
+    """Big batches take the parts in groups of equal vertex count, small ones one padded product: the
+    boxes are the same floats either way, so no collision outcome depends on how queries are batched."""
+    robot = robots[name]
+    q = _random_q(robot, 40, seed=7)
+    with World(robot, Scene("empty")) as world:
+        T = world.links.link_poses(q)
+        lo, hi = world._part_boxes(T)
+        one = [world._part_boxes(T[i:i + 1]) for i in range(len(q))]
+    assert np.array_equal(lo, np.concatenate([a for a, _ in one]))
+    assert np.array_equal(hi, np.concatenate([b for _, b in one]))
+
+
 def test_margin(panda):
     """A configuration d metres away is free at margins below d and in collision above it."""
     q = _random_q(panda, 200, seed=5)

@@ -19,6 +19,7 @@ planner's time limit, whose outcome depends on the machine's load).
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import queue
@@ -64,15 +65,16 @@ def work_dir(spec: DatasetSpec, root: Path | str | None = None) -> Path:
     return Path(root or datasets_root()) / spec.name / ".work" / spec.config_hash()[:16]
 
 
-def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str) -> dict:
+def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str, config_hash: str) -> dict:
     """The `samp.dataset` metadata record of a scene file: deterministic, no times or versions."""
-    return {"format_version": SCENE_FILE_VERSION, "dataset": spec.name, "config_hash": spec.config_hash(),
+    return {"format_version": SCENE_FILE_VERSION, "dataset": spec.name, "config_hash": config_hash,
             "robot": spec.robot, "robot_asset_hash": asset_hash, "scene_index": job.index, "split": job.split,
             "generator": job.generator, "scene_namespace": spec.namespace, "scene_seed": job.seed}
 
 
 # ------------------------------------------------------------------------------------------ one scene
 _ROBOTS: dict[str, object] = {}  # per process: robots are loaded once
+_SPECS: dict[str, tuple] = {}  # per process: the spec in use, validated (`_loaded`)
 _TICKS = None  # per worker process: queue of finished-problem ticks for the progress bar
 
 
@@ -82,6 +84,17 @@ def _init_worker(ticks, parent: int | None = None) -> None:
         die_with_parent(parent)
     _TICKS = ticks
     torch.set_num_threads(1)
+
+
+def _loaded(spec_dict: dict):
+    """(spec, expert config, config hash) of a spec mapping, validated once per process and copied out: a
+    worker plans many scenes of one spec, and validating it costs ~0.4 s (OmegaConf) each time."""
+    key = json.dumps(spec_dict, sort_keys=True)
+    if key not in _SPECS:
+        spec = load_spec(spec_dict)
+        _SPECS.clear()  # one spec at a time
+        _SPECS[key] = spec, spec.expert_config(), spec.config_hash()
+    return copy.deepcopy(_SPECS[key])
 
 
 def _robot(name: str):
@@ -141,12 +154,12 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
     from samp.expert.planner import make_planner
     from samp.scene.registry import scene_from_config
 
-    spec, out = load_spec(spec_dict), Path(out_dir)
+    (spec, cfg, config_hash), out = _loaded(spec_dict), Path(out_dir)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     tick = tick or (lambda: _TICKS.put(1) if _TICKS is not None else None)
     try:
-        robot, cfg = _robot(spec.robot), spec.expert_config()
+        robot = _robot(spec.robot)
         where = f"dataset spec {spec.name!r}, scene {job.index} (generator {job.generator!r}, seed {job.seed})"
         try:
             scene = scene_from_config(spec.generator_config(job.generator), job.seed)
@@ -175,7 +188,8 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         _write_json(out / (job.file + SIDECAR), sidecar)
         t0 = time.perf_counter()
         write_scene_file(out / job.file, SceneRecord(
-            scene, job.index, job.split, list(robot.joint_names), _file_metadata(spec, job, robot.asset_hash),
+            scene, job.index, job.split, list(robot.joint_names),
+            _file_metadata(spec, job, robot.asset_hash, config_hash),
             grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
             eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
             poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
@@ -255,6 +269,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     bar = Progress(plans, label, unit="plan", enabled=progress)  # a bar on a terminal, else a line now and then
     spec_dict = spec.resolved()
     spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__ if k in spec_dict}
+    _SPECS.clear()  # validated afresh: conf/ may have changed since this process last generated
     try:
         if workers == 1 or len(todo) <= 1:
             for job in todo:

@@ -143,9 +143,10 @@ class ExpertPlanner:
         if straight_free is None and cfg.direct:
             straight_free = bool(self.valid(segment_states(np.stack([q_start, q_goal]), cfg.resolution)[0]).all())
         direct = cfg.direct and bool(straight_free)
+        valid = _remembering(self.valid)  # OMPL asks about many states again (tree nodes, path vertices)
         for attempt in range(cfg.attempts):
             stats["attempts"] = attempt + 1
-            path, reason = self._attempt(q_start, q_goal, derive_seed(seed, attempt), direct, stats)
+            path, reason = self._attempt(q_start, q_goal, derive_seed(seed, attempt), direct, stats, valid)
             if path is None:
                 continue
             traj = resample(path, cfg.waypoints)
@@ -165,12 +166,12 @@ class ExpertPlanner:
         lim = self.robot.joint_limits.double().cpu().numpy()
         return np.clip(q, lim[:, 0], lim[:, 1])
 
-    def _attempt(self, q_start, q_goal, seed: int, direct: bool, stats: dict) -> tuple[np.ndarray | None, str]:
-        """One attempt: (path (m, n), "") or (None, reason)."""
+    def _attempt(self, q_start, q_goal, seed: int, direct: bool, stats: dict, valid) -> tuple[np.ndarray | None, str]:
+        """One attempt with the validity function `valid`: (path (m, n), "") or (None, reason)."""
         stats["direct"] = direct
         if direct:
             return np.stack([q_start, q_goal]), ""
-        out = plan_once(self.robot, self.cfg, self.valid, q_start, q_goal, seed, self.sampler)
+        out = plan_once(self.robot, self.cfg, valid, q_start, q_goal, seed, self.sampler)
         stats["solve_time"] += out.solve_time
         stats["simplify_time"] += out.simplify_time
         stats["motion_checks"] += out.motion_checks
@@ -180,6 +181,25 @@ class ExpertPlanner:
         if cfg.planner in ANYTIME and cfg.max_checks and out.motion_checks >= cfg.max_checks:
             return None, f"planner gave up: {cfg.planner} found no solution in {cfg.max_checks} motion checks (OMPL: {out.status})"
         return None, f"planner timeout: {cfg.planner} found no exact solution in {cfg.time_limit} s (OMPL: {out.status})"
+
+
+def _remembering(valid):
+    """`valid` ((B, n) -> (B,) bool, a function of each row alone) that answers a configuration it was asked
+    about before from memory, keyed by its exact bytes: the same answers, fewer collision queries. One per
+    planning problem, so the memory lives as long as the problem (about a quarter of OMPL's queries, and
+    most of its single-state ones, repeat a state of the same problem)."""
+    seen: dict[bytes, bool] = {}
+
+    def remembered(q: np.ndarray) -> np.ndarray:
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        keys = [row.tobytes() for row in q]
+        new = [i for i, key in enumerate(keys) if key not in seen]
+        if new:
+            for i, ok in zip(new, valid(q[new]).tolist()):
+                seen[keys[i]] = ok
+        return np.fromiter((seen[key] for key in keys), dtype=bool, count=len(keys))
+
+    return remembered
 
 
 def make_planner(robot, scene, cfg: ExpertConfig | dict | str | None = None, world=None):

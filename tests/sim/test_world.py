@@ -16,6 +16,7 @@ from samp.robot.bodies import MESH_MARGIN
 from samp.scene import Box, Cylinder, MeshObstacle, Pose, Scene, Sphere
 from samp.scene.sdf import obstacle_parts
 from samp.sim import World
+from samp.sim.world import SELF_SLACK
 
 N_CONFIGS = 500
 COVER = 0.003  # m, every point of a link surface lies this close to an oracle sample
@@ -292,6 +293,43 @@ def test_self_collision_matches_link_bodies(robots, name):
             expected.append(bool(world.links.colliding_pairs(exclude=robot.self_collision_exclude)))
     assert 0.05 < np.mean(expected) < 0.95, f"{name}: expected some self-collisions, got {np.mean(expected):.0%}"
     np.testing.assert_array_equal(hit, expected, err_msg=f"{name}: World vs LinkBodies.colliding_pairs")
+
+
+@pytest.mark.parametrize("name", ["panda", "iiwa", "xarm6"])
+def test_link_frame_boxes_drop_only_pairs_pybullet_finds_apart(robots, name):
+    """A self pair whose world boxes overlap but whose boxes in one part's link frame are SELF_SLACK apart is
+    not asked of pybullet: every such pair is apart by pybullet too (so no collision outcome changes), and
+    the filter removes a good share of the candidates (it is what keeps most free configurations out of
+    the narrowphase)."""
+    robot = robots[name]
+    q = _random_q(robot, 300, seed=6)
+    with World(robot, Scene("empty")) as world:
+        T = world.links.link_poses(q)
+        lo, hi = world._part_boxes(T)
+        touch = world._self_gaps(lo, hi) <= 0.0
+        dropped = np.argwhere(touch & ~world._apart_in_link_frames(T, touch))
+        assert len(dropped) > 0.2 * touch.sum(), f"{name}: dropped {len(dropped)} of {touch.sum()} candidates"
+        bodies = world.links.part_bodies
+        for j, s in dropped:
+            world.links.set_q(q[j])
+            a, b = world._self_pairs[s]
+            points = pb.getClosestPoints(bodies[a], bodies[b], 1.0, physicsClientId=world.client)
+            d = min(p[8] for p in points) + 2 * MESH_MARGIN
+            assert d > SELF_SLACK / 2, f"{name}: dropped pair {a}-{b} at configuration {j} is {d:.5f} m apart"
+
+
+@pytest.mark.parametrize("name", ["panda", "xarm6"])
+def test_part_boxes_of_a_big_batch_equal_those_of_one_configuration_at_a_time(robots, name):
+    """Big batches take the parts in groups of equal vertex count, small ones one padded product: the
+    boxes are the same floats either way, so no collision outcome depends on how queries are batched."""
+    robot = robots[name]
+    q = _random_q(robot, 40, seed=7)
+    with World(robot, Scene("empty")) as world:
+        T = world.links.link_poses(q)
+        lo, hi = world._part_boxes(T)
+        one = [world._part_boxes(T[i:i + 1]) for i in range(len(q))]
+    assert np.array_equal(lo, np.concatenate([a for a, _ in one]))
+    assert np.array_equal(hi, np.concatenate([b for _, b in one]))
 
 
 def test_margin(panda):

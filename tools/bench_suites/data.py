@@ -91,6 +91,13 @@ def _quality(folder: Path, robot) -> dict:
             "direct": sum(bool(e["stats"].get("direct")) for e in solved) / max(1, len(solved))}
 
 
+def _same_files(a: Path, b: Path) -> bool:
+    """Two dataset folders hold the same id (folder name) and byte-identical MCAP files."""
+    names = sorted(f.name for f in a.glob("*.mcap"))
+    return a.name == b.name and names == sorted(f.name for f in b.glob("*.mcap")) and all(
+        (a / n).read_bytes() == (b / n).read_bytes() for n in names)
+
+
 def _breakdown(manifest: dict, wall: float, workers: int, startup: float) -> dict:
     """Seconds per stage summed over the scenes (the workers' time, so they add up to about workers x wall)."""
     scenes = manifest["scenes"]
@@ -134,9 +141,12 @@ def _generation(args, root: Path) -> tuple[dict, list[list], Path]:
                 runs[label] = _run(src, spec, args.workers, root / label)
                 runs[label]["startup_s"] = _startup(src, args.robot)
         share = load_spec("standard").detour_share if args.detour_share is None else args.detour_share
-        if share > 0:
-            print(f"data: generating with samp, detour_share {share} ...", flush=True)
-            runs["detours"] = _run(REPO, _spec(args, share), args.workers, root / "detours")
+        todo = (("baseline_detours", "baseline", base), ("detours", "samp", REPO)) if share > 0 else ()
+        for label, code, src in todo:  # a baseline from before detour_share cannot generate the detour spec
+            if src is not None and "detour_share" in (src / "samp" / "data" / "spec.py").read_text():
+                print(f"data: generating with {code}, detour_share {share} ...", flush=True)
+                runs[label] = _run(src, _spec(args, share), args.workers, root / label)
+                runs[label]["startup_s"] = runs[code]["startup_s"]
     finally:
         if worktree is not None:
             subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=REPO, capture_output=True)
@@ -160,14 +170,31 @@ def _generation(args, root: Path) -> tuple[dict, list[list], Path]:
               "" if old is None else f"{1e3 * old['min_clearance_min']:.1f}", ""],
              ["  solved by the straight motion", f"{cur['direct']:.0%}", cell(old, "direct", ".0%"), ""]]
     if "detours" in runs:
-        d = runs["detours"]
-        rows.append([f"  with detour_share {share}: rate, straight motions", f"{d['traj_per_s']:.2f} traj/s",
-                     f"{d['direct']:.0%} straight", ""])
-    breakdown = _breakdown(read_manifest(Path(cur["folder"])), cur["wall_s"], args.workers, cur["startup_s"])
-    rows.append([f"breakdown (worker seconds, {args.workers} x {cur['wall_s']:.1f} s wall)", "", "", ""])
+        d, od = runs["detours"], runs.get("baseline_detours")
+        rows += [[f"  with detour_share {share}", f"{d['traj_per_s']:.2f} traj/s", cell(od, "traj_per_s", ".2f") +
+                  (" traj/s" if od else ""), f"{d['traj_per_s'] / od['traj_per_s']:.2f}x" if od else ""],
+                 ["    solved by the straight motion", f"{d['direct']:.0%}", cell(od, "direct", ".0%"), ""],
+                 ["    joint path length, mean (rad)", f"{d['joint_path_length']:.3f}",
+                  cell(od, "joint_path_length", ".3f"), ""],
+                 ["    min clearance per trajectory, mean (mm)", f"{1e3 * d['min_clearance_mean']:.1f}",
+                  "" if od is None else f"{1e3 * od['min_clearance_mean']:.1f}", ""]]
+    pairs = [(a, b) for a, b in (("samp", "baseline"), ("detours", "baseline_detours")) if b in runs]
+    if pairs:  # same spec, same seed: the same dataset, byte for byte, whichever code made it
+        same = all(_same_files(Path(runs[a]["folder"]), Path(runs[b]["folder"])) for a, b in pairs)
+        metrics["generate/same_files_as_baseline"] = same
+        rows.append(["  same dataset ids and files as the baseline", "yes" if same else "NO", "", ""])
+    main = "detours" if "detours" in runs else "samp"  # the breakdown of the standard spec's detour share
+    wall = runs[main]["wall_s"]
+    breakdown = _breakdown(read_manifest(Path(runs[main]["folder"])), wall, args.workers, runs[main]["startup_s"])
+    other = "baseline_detours" if main == "detours" else "baseline"
+    before = (_breakdown(read_manifest(Path(runs[other]["folder"])), runs[other]["wall_s"], args.workers,
+                         runs[other]["startup_s"]) if other in runs else {})
+    rows.append([f"breakdown of the {main} run (worker seconds, {args.workers} x {wall:.1f} s wall; baseline's beside)",
+                 "", "", ""])
     for stage, seconds in breakdown.items():
         metrics[f"breakdown/{stage}"] = seconds
-        rows.append([f"  {stage}", f"{seconds:.1f} s", "", f"{seconds / max(1e-9, args.workers * cur['wall_s']):.0%}"])
+        rows.append([f"  {stage}", f"{seconds:.1f} s ({seconds / max(1e-9, args.workers * wall):.0%})",
+                     f"{before[stage]:.1f} s" if stage in before else "", ""])
     rate = runs.get("detours", cur)["problems_per_s"]  # the rate with the standard spec's detour share
     for name in ("standard", "paper"):
         for cores in (2, 8, 32):

@@ -41,7 +41,7 @@ class LossConfig:
     d_margin: float = 0.09  # metres
     d_target: float = 0.015  # metres
     tau: float = 1.0  # temperature of the per-point weights (1: the paper's)
-    margin: str = "fixed"  # fixed: d_margin everywhere (the paper's) | demo: min(d_margin, the demonstration's clearance)
+    margin: str = "fixed"  # fixed: d_margin everywhere (the paper's) | demo: min(d_margin, the demo's clearance)
 
     def __post_init__(self):
         if self.margin not in MARGINS:

@@ -31,6 +31,8 @@ from samp.scene.grid import sample_grid
 
 __all__ = ["CheckConfig", "CheckedPolicy"]
 
+FINISH_RESOLUTION = 0.02  # rad between the checked states of a finishing segment (the evaluation's substep_resolution)
+
 
 @dataclass
 class CheckConfig:
@@ -90,11 +92,11 @@ class CheckedPolicy:
 
     def _finishes(self, grid: torch.Tensor, bounds, q: torch.Tensor, goal: torch.Tensor, clear: float) -> bool:
         """Whether a candidate stalled at q (clear so far) ends on the straight segment to the goal: within
-        `finish` radians of it, and the segment clear of the grid at sub-steps of at most 0.02 rad."""
+        `finish` radians of it, and the segment clear of the grid at sub-steps of at most FINISH_RESOLUTION."""
         dist = float((goal - q).norm())
         if self.cfg.finish <= 0 or dist > self.cfg.finish or clear <= self.cfg.margin:
             return False
-        steps = max(1, int(np.ceil(dist / 0.02)))
+        steps = max(1, int(np.ceil(dist / FINISH_RESOLUTION)))
         return float(self._clearance(grid, bounds, q[None], goal[None], steps)[0]) > self.cfg.margin
 
     def plan(self, problem) -> PlannedTrajectory:

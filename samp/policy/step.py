@@ -32,4 +32,5 @@ class SAMPStepPolicy(Plannable):
         if self._features is None:
             self.reset(env)
         with torch.inference_mode():
-            return self.system.predict(q, q_goal, self._features, env.scene_index, self.system.bounds)
+            return self.system.predict(q, q_goal, self._features, env.scene_index, self.system.bounds,
+                                       near=self.system.robot_sdf_pairs == "near")

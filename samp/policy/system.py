@@ -78,7 +78,7 @@ class PolicySystem(PolicySystemBase, kind="samp"):
             to the tables), or "near": only the pairs no arm joint or one arm joint apart (the rigid part and the
             tables), skipping the network for the rest, an approximation measured on the benchmark (README,
             "What a step costs"). None (the default): "near" with tables, "all" without (robot_sdf_tables=0).
-            Training always uses "all" (the collision loss needs true distances).
+            Only rollouts (`SAMPStepPolicy`) read it: training and validation losses use every pair.
         optimizer, scheduler: `_partial_` config nodes (conf/optimizer/), see `PolicySystemBase`.
         robot_sdf_payload: the robot SDF as a checkpoint stores it (instead of `robot_sdf`).
     """
@@ -120,12 +120,12 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         return self
 
     # ------------------------------------------------------------------ the policy
-    def robot_features(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """q (B, n) radians -> T_q(P) (B, M, 3) and the robot SDF there (B, M), no gradients; one FK for both."""
+    def robot_features(self, q: torch.Tensor, near: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """q (B, n) radians -> T_q(P) (B, M, 3) and the robot SDF there (B, M), no gradients; one FK for both.
+        `near`: without the pairs two or more joints apart (what a rollout step asks for, `robot_sdf_pairs`)."""
         with torch.no_grad():
             poses = self.robot.link_poses(q)
             points = self.robot.transform_points(q, poses)
-            near = self.robot_sdf_pairs == "near" and not self.training  # a rollout's approximation only
             return points, self.robot_sdf.at_robot_points(q, points, poses, self.robot_sdf_tables,
                                                           needed=False if near else None)
 
@@ -134,9 +134,10 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         return self.net.encode_scenes(grids) if self.net_cfg.env_encoder else None
 
     def predict(self, q: torch.Tensor, q_goal: torch.Tensor, features: torch.Tensor | None, scene: torch.Tensor,
-                bounds) -> torch.Tensor:
-        """One policy step: q, q_goal (B, n) radians; features from `encode`, scene (B,) into them -> (B, n)."""
-        points, d_robot = self.robot_features(q)
+                bounds, near: bool = False) -> torch.Tensor:
+        """One policy step: q, q_goal (B, n) radians; features from `encode`, scene (B,) into them -> (B, n).
+        `near`: the robot SDF input without the far pairs (`robot_features`); the losses always use them all."""
+        points, d_robot = self.robot_features(q, near)
         if not self.hparams.robot_sdf_feature:
             d_robot = torch.zeros_like(d_robot)
         u = self.net(normalize(q, self.limits), normalize(q_goal, self.limits), points, d_robot, features, scene, bounds,
@@ -159,9 +160,8 @@ class PolicySystem(PolicySystemBase, kind="samp"):
             if not isinstance(robot_sdf_tables, int) or robot_sdf_tables < 0 or robot_sdf_tables == 1:
                 raise ValueError(f"robot_sdf_tables must be 0 (exact) or an integer >= 2, got {robot_sdf_tables!r}")
             self.robot_sdf_tables = robot_sdf_tables
-        # a new tables setting without a pairs setting takes the default pairs for it (tables=0: exact throughout)
-        self._set_pairs(robot_sdf_pairs if robot_sdf_pairs is not None or robot_sdf_tables is not None
-                        else self.robot_sdf_pairs)
+        if robot_sdf_pairs is not None or robot_sdf_tables is not None:  # new tables alone: their default pairs
+            self._set_pairs(robot_sdf_pairs)
         if check is None:
             return SAMPStepPolicy(self)
         from samp.policy.checked import CheckConfig, CheckedPolicy

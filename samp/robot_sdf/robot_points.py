@@ -114,15 +114,13 @@ class SelfDistances:
             rows = torch.arange(len(self.table_point), device=q.device)
             v = self.table[rows, i] * (1 - f) + self.table[rows, i + 1] * f
             out.view(-1).scatter_reduce_(0, (offset + self.table_point).view(-1), v.view(-1), "amin")
-        if needed is False:
-            pass
-        elif needed is None:
+        if needed is None:
             u = sdf.link_coords(points, q, poses)  # (B, M, L, 3)
             bound = (u - u.clamp(-1, 1)).norm(dim=-1) * sdf.scales  # (B, M, L)
             b, m, l = torch.nonzero(self.network_pairs & ((bound < out[:, :, None]) | (bound == 0)), as_tuple=True)
             if len(b):
                 out.view(-1).scatter_reduce_(0, b * M + m, sdf._pair_values(u[b, m, l], l), "amin")
-        else:  # the same, for the needed points only (their coordinates are the full query's, to the bit)
+        elif needed is not False:  # the same, for the needed points only (their coordinates are the full query's)
             rb, rm = torch.nonzero(needed, as_tuple=True)
             u = sdf.link_coords(points, q, poses)[rb, rm]  # (R, L, 3): one batched product is cheap at any B
             bound = (u - u.clamp(-1, 1)).norm(dim=-1) * sdf.scales  # (R, L)

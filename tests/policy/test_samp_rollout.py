@@ -51,7 +51,8 @@ def test_load_policy_steps_as_the_trained_network_predicts(trained):
     policy.reset(env)
     got = policy.step(b["q"], b["q_goal"], env)
     with torch.no_grad():
-        want = system.predict(b["q"], b["q_goal"], system.encode(dm.grids), b["scene"], dm.bounds)
+        want = system.predict(b["q"], b["q_goal"], system.encode(dm.grids), b["scene"], dm.bounds,
+                              near=policy.system.robot_sdf_pairs == "near")
     assert torch.equal(got, want), f"max difference {float((got - want).abs().max())}"
     assert not torch.allclose(got, b["q"]), "a step must move the arm"
     lim = system.robot.joint_limits.to(got)

@@ -9,8 +9,8 @@ the anchor grid: the grid's SDF, trilinear at the robot points posed at `substep
 segment, must stay above `margin` metres; a detour that fails this stops there (the plain rollout always
 runs on). A candidate that stalls within `finish` radians of the goal configuration ends on the straight
 segment to it when the grid says that segment is clear too (the learned policy tends to stop a few
-centimetres short of goals close to surfaces). The first candidate to reach the goal with a clear record is the answer; when none does, the
-plain rollout.
+centimetres short of goals close to surfaces). The first candidate to reach the goal with a clear record
+is the answer; when none does, the plain rollout.
 
 The check reads the same anchor grid the policy reads (the scene's exact SDF at n_e anchors), so it costs
 grid samples, not collision queries. Its solution time is the whole call: encoding, steps and checks.

@@ -168,6 +168,8 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.train experiment=samp_no_coll_loss", Compose("experiment=samp_no_coll_loss", LONG)),
     ("python -m samp.train experiment=samp_cpu", Compose("experiment=samp_cpu", LONG)),
     ("python -m samp.train -m sweep=data_scaling", Compose("-m sweep=data_scaling", LONG)),
+    ("python -m samp.train -m sweep=loss_terms", Compose("-m sweep=loss_terms", LONG)),
+    ("python -m samp.train experiment=samp_cpu loss=paper", Compose("experiment=samp_cpu loss=paper", LONG)),
     ("python -m samp.train experiment=samp_n100 logger=mlflow", Compose("experiment=samp_n100 logger=mlflow", LONG)),
     ("python -m samp.train experiment=samp_n100 logger=wandb", Compose("experiment=samp_n100 logger=wandb", LONG)),
     ("python -m samp.train experiment=mpinet [trainer=gpu] [datamodule.dataset=NAME@ID]",

@@ -31,7 +31,7 @@ def _groups(runs: list[Run], by: str) -> dict:
     check_key(runs, by, "--by key")
     groups: dict = {}
     for r in runs:
-        groups.setdefault(r.get(by), []).append(r)
+        groups.setdefault(r.setting(by), []).append(r)
     numeric = all(isinstance(k, (int, float)) for k in groups)
     return dict(sorted(groups.items(), key=lambda kv: kv[0] if numeric else str(kv[0])))
 
@@ -109,6 +109,9 @@ def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
             errors.append(_errors(scale * mean, scale * span[0], scale * span[1]) if vals else (math.nan, math.nan))
         ax.bar(labels, means, yerr=list(zip(*errors)), capsize=3, color="tab:blue", alpha=0.8)
         ax.set_xlabel(by)
+        if sum(map(len, labels)) > 6 * len(labels):  # names rather than numbers: slanted, so they do not overlap
+            ax.tick_params(axis="x", labelrotation=30)
+            plt.setp(ax.get_xticklabels(), ha="right", rotation_mode="anchor")
         ax.set_ylabel("mean of runs [%]; bars: pooled Wilson 95 %" if wilson else "mean of runs; bars: min to max")
         ax.set_title(metric)
         ax.grid(axis="y", alpha=0.3)

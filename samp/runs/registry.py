@@ -60,6 +60,11 @@ class Run:
         """A metric, a config key or a record key; None when the run has no such key."""
         return self.metrics[key] if key in self.metrics else self.values.get(key)
 
+    def setting(self, key: str):
+        """What runs are grouped by (`by=`): the config or record value of `key`, a metric only when no config
+        or record key has that name (a config group `loss` and Lightning's `loss` metric share one)."""
+        return self.values[key] if key in self.values else self.metrics.get(key)
+
     def has(self, key: str) -> bool:
         return key in self.metrics or key in self.values
 

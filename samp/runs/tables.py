@@ -155,7 +155,7 @@ def group_table(runs: list[Run], by: str, metrics: list[str]) -> tuple[list[str]
     rates = with_intervals(runs, metrics)
     groups: dict = {}
     for r in runs:
-        groups.setdefault(r.get(by), []).append(r)
+        groups.setdefault(r.setting(by), []).append(r)
     rows = []
     for value in sorted(groups, key=_sort_key):
         members = groups[value]

@@ -177,3 +177,24 @@ def test_tables_by_dotted_keys_get_files_of_their_own(tmp_path):
                                        "table_by_datamodule.dataset.md", "table_by_datamodule.dataset.csv"]
     assert "40" in a[0].read_text() and "smoke" in b[0].read_text()
     assert [p.name for p in write_table(tmp_path / "mine.md", ["k"], [["v"]])] == ["mine.md", "mine.csv"]
+
+
+def test_runs_group_by_the_config_key_when_a_metric_has_the_same_name(tmp_path):
+    """`by=loss` means the named loss (config group `loss`), not Lightning's `loss` metric that every run also
+    records; a key only metrics have still groups by the metric."""
+    from samp.runs.plots import _groups
+    from samp.runs.registry import find_runs
+    from samp.runs.tables import group_table
+
+    for i, (name, final) in enumerate([("paper", 0.021), ("paper", 0.019), ("tau_1cm", 0.024)]):
+        folder = tmp_path / "sweep" / f"member{i}"
+        folder.mkdir(parents=True)
+        (folder / "run.json").write_text(json.dumps({
+            "status": "completed", "config": {"loss": name, "name": "samp_cpu"},
+            "metrics": {"loss": final, "val/loss": final, "eval/samp/benchmark/success_rate": 0.5 + i / 10}}))
+    runs = find_runs(tmp_path / "sweep")
+    _, rows = group_table(runs, "loss", ["eval/samp/benchmark/success_rate"])
+    assert [(row[0], row[1]) for row in rows] == [("paper", "2"), ("tau_1cm", "1")]
+    assert list(_groups(runs, "loss")) == ["paper", "tau_1cm"]
+    _, rows = group_table(runs, "val/loss", ["eval/samp/benchmark/success_rate"])
+    assert len(rows) == 3  # a metric alone still groups

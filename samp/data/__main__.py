@@ -48,8 +48,9 @@ def _root(cfg_or_args) -> Path | None:
 def _generate(overrides: list[str]) -> None:
     from omegaconf import OmegaConf
 
-    from samp.data.generation import GenerationInterrupted, generate
+    from samp.data.generation import GenerationInterrupted, generate, reproducible_mkl
 
+    reproducible_mkl()  # before anything in this process calls MKL: with workers=1 it plans here
     cfg = _config(overrides)
     spec = OmegaConf.to_container(cfg.dataset, resolve=True)
     try:

@@ -13,8 +13,15 @@ training data (`samp.data.mcap_io`). Scene files collect in a work folder keyed 
     (`samp.data.registry.finalize_dataset`), after which the work folder is removed.
 
 Wall-clock times go to the manifest, not into the MCAP files, so the data files, and with them the
-dataset id, depend only on the spec and seed (on one machine, as long as no problem hits the
-planner's time limit, whose outcome depends on the machine's load).
+dataset id, depend only on the spec and seed (as long as no problem hits the planner's time limit, whose
+outcome depends on the machine's load). Across machines too: the IK's small linear solves go through
+torch's MKL, which picks its kernels by CPU (AVX2, AVX-512, ...) and rounds differently with each, and a
+last-bit difference there sends OMPL down another path. Planning processes therefore ask MKL for its
+CPU-independent code path (`REPRODUCIBLE_MKL`) before their first MKL call: the spawned workers
+(`workers` >= 2) always, and the process of `python -m samp.data generate`, which plans in itself with
+`workers=1`. A caller's process that plans in itself (`generate(..., workers=1)` from Python, e.g. a
+training recipe) keeps MKL's path for its CPU, so its ids can differ across machines: MKL fixes its path at
+the first call, and the CPU-independent one is 2 to 5 times slower for the large products of training.
 """
 
 from __future__ import annotations
@@ -42,6 +49,8 @@ from samp.data.spec import DatasetSpec, SceneJob, load_spec
 __all__ = ["GenerationError", "GenerationInterrupted", "generate", "merge", "work_dir"]
 
 TIMING_KEYS = ("planning_time", "solve_time", "simplify_time")  # wall clock: manifest only
+# Intel MKL's conditional numerical reproducibility: the same results on every x86 CPU (module docstring).
+REPRODUCIBLE_MKL = {"MKL_CBWR": "COMPATIBLE"}
 SIDECAR = ".json"
 # derive_seed(scene seed, KEY[, problem]): the seed streams of a scene's problems and plans. Demonstrations
 # and evaluation problems draw from different streams, so no evaluation problem repeats a demonstration.
@@ -78,8 +87,16 @@ _SPECS: dict[str, tuple] = {}  # per process: the spec in use, validated (`_load
 _TICKS = None  # per worker process: queue of finished-problem ticks for the progress bar
 
 
+def reproducible_mkl() -> None:
+    """Ask MKL for its CPU-independent results (`REPRODUCIBLE_MKL`) unless the environment sets them. Effective
+    only before the process's first MKL call: a process that plans calls it first thing."""
+    for key, value in REPRODUCIBLE_MKL.items():
+        os.environ.setdefault(key, value)
+
+
 def _init_worker(ticks, parent: int | None = None) -> None:
     global _TICKS
+    reproducible_mkl()
     if parent is not None:
         die_with_parent(parent)
     _TICKS = ticks
@@ -271,10 +288,10 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     spec_dict = {k: spec_dict[k] for k in DatasetSpec.__dataclass_fields__ if k in spec_dict}
     _SPECS.clear()  # validated afresh: conf/ may have changed since this process last generated
     try:
-        if workers == 1 or len(todo) <= 1:
+        if workers == 1 or not todo:  # in this process (its MKL path: module docstring)
             for job in todo:
                 run_scene(spec_dict, job, str(work), tick=lambda: bar.update(1))
-        else:
+        else:  # in workers, also for a single scene, so that workers >= 2 always plans on MKL's common path
             _run_pool(spec_dict, todo, work, min(workers, len(todo)), bar)
     except KeyboardInterrupt:
         done = sum((work / j.file).is_file() for j in jobs)

@@ -173,8 +173,18 @@ def test_grids_are_the_exact_scene_sdf(tiny):
 
 
 def test_same_spec_and_seed_give_the_same_id(tiny, tmp_path):
-    """Regenerated elsewhere with two worker processes: byte-identical files, the same id."""
-    again = generate(TINY, root=tmp_path, workers=2, progress=False)
+    """Regenerated elsewhere, by the command line planning in its own process (workers=1): byte-identical
+    files, the same id."""
+    import subprocess
+    import sys
+
+    spec = [f"dataset.{k}=" + (f"[{','.join(v)}]" if isinstance(v, list) and isinstance(v[0], str) else
+                               str(v).replace(" ", "")) for k, v in {**TINY, "detour_share": 0.0}.items()]
+    out = subprocess.run([sys.executable, "-m", "samp.data", "generate", "+dataset=quickstart", *spec,
+                          f"root={tmp_path}", "workers=1", "progress=false"], capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    again = tmp_path / TINY["name"] / tiny[0].name
     assert again.name == tiny[0].name
     assert len(list(tiny[0].glob("*.mcap"))) == 3
     for f in sorted(tiny[0].glob("*.mcap")):
@@ -191,12 +201,16 @@ PINNED_FILES = {"scene_0000.mcap": "2df5e22599cbbb812f75a06e431945fc2fe157ebf20e
 
 
 def test_a_pinned_spec_gives_the_files_it_always_gave(tmp_path):
-    """Same spec and seed, same bytes across code versions: datasets keep their ids and contents (the standing
-    benchmark's among them). A change that must alter the output changes the format version instead and
-    records the new digests here."""
+    """Same spec and seed, same bytes across code versions and machines: datasets keep their ids and contents
+    (the standing benchmark's among them). A change that must alter the output changes the format version
+    instead and records the new digests here. The workers plan on MKL's CPU-independent path whatever this
+    process did before (here it has just made MKL pick this CPU's own kernels), so the digests, pinned on
+    another machine, hold on this one."""
     import hashlib
 
-    folder = generate(PINNED, root=tmp_path, progress=False)
+    a = torch.randn(64, 64, dtype=torch.float64)
+    torch.linalg.solve(a @ a.T + torch.eye(64, dtype=torch.float64), a)  # MKL's path in this process: the CPU's
+    folder = generate(PINNED, root=tmp_path, workers=2, progress=False)
     assert folder.name == "bce1d3e51215"
     digests = {f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in sorted(folder.glob("*.mcap"))}
     assert digests == PINNED_FILES, "the generated files differ from those this spec has always given"

@@ -67,15 +67,25 @@ def collision_loss(pred_points: torch.Tensor, grids: torch.Tensor, scene_index: 
 
     The hinge is zero wherever a point is farther than d_margin from every obstacle, and on demonstrations
     that keep clear of obstacles that is most points (about 99 % on the quickstart data), so asking for the
-    robot SDF only where it is active is exact and saves most of a query."""
-    env = sample_by_scene(grids[:, None], scene_index, pred_points, bounds)[:, 0]  # (B, M)
+    robot SDF only where it is active is exact and saves most of a query. For the same reason the
+    environment SDF is differentiated at the active points only: it is read everywhere without a graph, then
+    again with one where the hinge acts (the same trilinear values, point by point), which spares the
+    backward pass of the grid sampling at every other point."""
     margin = cfg.d_margin
     if cfg.margin == "demo":
         if true_points is None:
             raise ValueError('loss.margin="demo" needs the demonstrated points (true_points)')
-        demo = sample_by_scene(grids[:, None], scene_index, true_points, bounds)[:, 0]  # (B, M)
+        with torch.no_grad():
+            demo = sample_by_scene(grids[:, None], scene_index, true_points, bounds)[:, 0]  # (B, M)
         margin = demo.clamp(max=cfg.d_margin)
+    with torch.no_grad():
+        env = sample_by_scene(grids[:, None], scene_index, pred_points, bounds)[:, 0]  # (B, M)
     hinge = torch.relu(margin - env)
+    if torch.is_grad_enabled() and pred_points.requires_grad:
+        b, m = torch.nonzero(~(hinge <= 0), as_tuple=True)  # (R,) each: the active points (and NaN ones)
+        active = sample_by_scene(grids[:, None], scene_index[b], pred_points[b, m][:, None], bounds)[:, 0, 0]
+        margin_active = margin[b, m] if isinstance(margin, torch.Tensor) else margin
+        hinge = torch.zeros_like(hinge).index_put((b, m), torch.relu(margin_active - active))
     if callable(robot_sdf):
         robot_sdf = robot_sdf(hinge.detach() > 0)
     weights = torch.exp(-(robot_sdf.detach() - cfg.d_target) / cfg.tau)

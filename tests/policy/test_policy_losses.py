@@ -74,6 +74,46 @@ def test_collision_loss_gradient_pushes_points_out():
     assert pts.grad[0, 0, 0] > 0  # descending the gradient moves the point in -x, away from the box
 
 
+
+@pytest.mark.parametrize("margin", ["fixed", "demo"])
+def test_collision_loss_differentiated_at_active_points_equals_the_dense_hinge(margin):
+    """`collision_loss` reads the grid with a graph only where the hinge acts; the oracle is the dense
+    formula of DESIGN section 4 (trilinear at every point, hinge, per-point weights, mean). Two scenes, points
+    near and far from their obstacles: the loss and the gradients at the points must be equal bit for bit
+    (each point's trilinear value does not depend on which others are sampled with it)."""
+    from samp.policy.network import sample_by_scene
+
+    scenes = [Scene("box", obstacles=(Box("b", (0.4, 0.4, 0.4), Pose((0.5, 0.0, 0.5))),), bounds=BOUNDS),
+              Scene("low", obstacles=(Box("c", (0.6, 0.6, 0.2), Pose((-0.3, 0.2, 0.3))),), bounds=BOUNDS)]
+    grids = torch.stack([s.anchor_grid(21, cache=False) for s in scenes])
+    g = torch.Generator().manual_seed(5)
+    lo, hi = torch.tensor(BOUNDS[0]), torch.tensor(BOUNDS[1])
+    pts = lo + (hi - lo) * torch.rand(6, 200, 3, generator=g)
+    true = pts + 0.02 * torch.randn(pts.shape, generator=g)
+    scene = torch.tensor([1, 0, 1, 1, 0, 0])
+    d_robot = 0.05 * torch.rand(6, 200, generator=g)
+    cfg = LossConfig(margin=margin, d_margin=0.2)
+
+    def dense(p):
+        env = sample_by_scene(grids[:, None], scene, p, BOUNDS)[:, 0]
+        m = (sample_by_scene(grids[:, None], scene, true, BOUNDS)[:, 0].clamp(max=cfg.d_margin) if margin == "demo"
+             else cfg.d_margin)
+        return (torch.exp(-(d_robot - cfg.d_target) / cfg.tau) * torch.relu(m - env)).mean()
+
+    got_p, want_p = pts.clone().requires_grad_(), pts.clone().requires_grad_()
+    got = collision_loss(got_p, grids, scene, BOUNDS, d_robot, cfg, true)
+    want = dense(want_p)
+    got.backward()
+    want.backward()
+    active = (want_p.grad != 0).any(dim=-1)
+    assert 0 < int(active.sum()) < active.numel(), "the test needs both active and inactive points"
+    assert torch.equal(got, want), f"loss: expected {float(want)!r}, got {float(got)!r}"
+    assert torch.equal(got_p.grad, want_p.grad), \
+        f"gradients differ by up to {float((got_p.grad - want_p.grad).abs().max()):.3e}"
+    with torch.no_grad():  # no graph: the same value
+        assert torch.equal(collision_loss(pts, grids, scene, BOUNDS, d_robot, cfg, true), want.detach())
+
+
 def _step(robot_sdf_calls: list):
     """A StepPrediction with a linear environment SDF; `robot_sdf_calls` counts the robot SDF queries."""
     from samp.policy.losses import StepPrediction

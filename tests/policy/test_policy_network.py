@@ -103,3 +103,20 @@ def test_max_over_points_has_amax_values_and_gradients():
     torch.testing.assert_close(xb, xa, rtol=1e-5, atol=1e-6)
     with torch.no_grad():  # no autograd: the plain max
         assert torch.equal(max_over_points(mlp, x), mlp(x).amax(dim=1))
+
+
+def test_first_argmax_is_argmax():
+    """The blocked winner search (`first_argmax`) against torch's argmax, the oracle: random values, ties
+    across and within blocks (argmax takes the first), NaN and inf (a NaN is the maximum), integer-valued
+    ties everywhere, and a point count that is no multiple of the block."""
+    from samp.policy.network import first_argmax
+
+    torch.manual_seed(4)
+    z = torch.randn(6, 256, 16)
+    tied = z.clone()
+    tied[:, 5] = tied[:, 6] = tied[:, 200] = 100.0  # one tie within a block, one across blocks
+    tied[0, 3, 0], tied[1, 250, 1], tied[2, 40, 2] = float("nan"), float("nan"), float("inf")
+    for name, v in {"random": z, "ties, NaN, inf": tied, "few values": torch.randint(0, 3, (4, 64, 8)).float(),
+                    "M % 32 != 0": torch.randn(3, 100, 5)}.items():
+        want, got = v.argmax(dim=1), first_argmax(v)
+        assert torch.equal(got, want), f"{name}: expected argmax {want.tolist()}, got {got.tolist()}"

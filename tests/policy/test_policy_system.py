@@ -131,6 +131,32 @@ def test_the_optimizer_and_scheduler_come_from_config(setup):
         _system(setup, optimizer={"lr": 1.0})
 
 
+def test_the_default_optimizer_is_fused_adamw_with_the_same_updates(setup):
+    """The default (and conf/optimizer/adamw_*) AdamW runs fused; its steps equal the per-operation AdamW's
+    (the oracle) up to float rounding, from the same weights and gradients."""
+    from omegaconf import OmegaConf
+
+    from samp.paths import conf_dir
+
+    for name in ("adamw_warm_restarts", "adamw_constant"):
+        assert OmegaConf.load(conf_dir() / "optimizer" / f"{name}.yaml").optimizer.fused is True, name
+    fused = _system(setup)
+    opt = fused.configure_optimizers()["optimizer"]
+    assert isinstance(opt, torch.optim.AdamW) and opt.defaults["fused"] is True
+    plain = _system(setup)
+    plain.load_state_dict(fused.state_dict())
+    reference = torch.optim.AdamW(plain.net.parameters(), lr=1e-4, weight_decay=1e-2)
+    torch.manual_seed(0)
+    for _ in range(3):
+        for a, b in zip(fused.net.parameters(), plain.net.parameters()):
+            a.grad = torch.randn_like(a)
+            b.grad = a.grad.clone()
+        opt.step()
+        reference.step()
+    for (name, a), b in zip(fused.net.named_parameters(), plain.net.parameters()):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-8, msg=lambda m: f"{name}: {m}")
+
+
 def test_robot_sdf_for_another_robot_is_refused(setup):
     _, payload = setup
     other = {**payload, "info": {**payload["info"], "robot": "iiwa"}}

@@ -139,7 +139,8 @@ def _time_training(system, robot, scenes: list, g: torch.Generator, device: torc
     lo, hi = robot.joint_limits.float().T
     q = (lo + (hi - lo) * torch.rand(B, robot.dof, generator=g)).to(device)
     batch = {"q": q, "q_next": q + 0.01, "q_goal": q.flip(0)}
-    opt = torch.optim.AdamW(system.net.parameters(), lr=1e-4)
+    configured = system.configure_optimizers()  # the optimizer training uses (without its scheduler)
+    opt = configured["optimizer"] if isinstance(configured, dict) else configured
 
     def step(scene):
         loss = system._losses({**batch, "scene": scene})["loss"]

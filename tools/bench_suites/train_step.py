@@ -3,9 +3,10 @@ prints JSON {"seconds_per_step", "cpu_seconds_per_step", "loss", "threads"} for 
 
 The policy suite runs it once with this checkout and once with --baseline-src (an older checkout, e.g. a
 `git worktree` of the commit to compare against), so both are timed in the same run, on the same batch,
-through the API both versions share: PolicySystem(robot, robot_sdf_payload, model), bind(DatasetBinding)
-and _losses(batch). `--exact` asks for the settings an older checkout had (the robot SDF evaluated at every
-pair, features read over the grid's bounds), to compare the loss on the fixed batch.
+through the API both versions share: PolicySystem(robot, robot_sdf_payload, model), bind(DatasetBinding),
+_losses(batch) and configure_optimizers (each checkout's own optimizer). `--exact` asks for the settings an
+older checkout had (the robot SDF evaluated at every pair, features read over the grid's bounds, BatchNorm in
+the env encoder), to compare the loss on the fixed batch.
 """
 
 from __future__ import annotations
@@ -15,6 +16,12 @@ import json
 import statistics
 import sys
 import time
+
+
+def _optimizer(system):
+    """The optimizer the checkout's own training would use (`configure_optimizers`, without its scheduler)."""
+    configured = system.configure_optimizers()
+    return configured["optimizer"] if isinstance(configured, dict) else configured
 
 
 def main(argv=None) -> int:
@@ -43,6 +50,12 @@ def main(argv=None) -> int:
             model["registration"], extra["robot_sdf_tables"] = "bounds", 0
         except ValueError:  # a checkout from before tables and registration: it is exact already
             pass
+        from dataclasses import fields
+
+        from samp.policy.network import PolicyConfig
+
+        if "norm" in {f.name for f in fields(PolicyConfig)}:  # BatchNorm was the only normalisation before
+            model["norm"] = "batch"
     torch.manual_seed(0)
     system = PolicySystem(robot="panda", robot_sdf_payload=read_robot_sdf(args.robot_sdf), model=model, **extra)
     robot = system.robot
@@ -57,7 +70,7 @@ def main(argv=None) -> int:
     system.train()
     with torch.no_grad():
         loss = float(system._losses(batch)["loss"])
-    opt = torch.optim.AdamW(system.net.parameters(), lr=1e-4)
+    opt = _optimizer(system)
 
     def step():
         out = system._losses(batch)["loss"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -203,14 +204,22 @@ PINNED_FILES = {"scene_0000.mcap": "2df5e22599cbbb812f75a06e431945fc2fe157ebf20e
 def test_a_pinned_spec_gives_the_files_it_always_gave(tmp_path):
     """Same spec and seed, same bytes across code versions and machines: datasets keep their ids and contents
     (the standing benchmark's among them). A change that must alter the output changes the format version
-    instead and records the new digests here. The workers plan on MKL's CPU-independent path whatever this
-    process did before (here it has just made MKL pick this CPU's own kernels), so the digests, pinned on
-    another machine, hold on this one."""
+    instead and records the new digests here. Generated from a process like a training recipe's, whose MKL
+    already took this CPU's own kernels (no MKL_CBWR, an MKL solve first): its workers plan on MKL's
+    CPU-independent path all the same, so the digests, pinned on another machine, hold on this one."""
     import hashlib
+    import os
+    import subprocess
+    import sys
 
-    a = torch.randn(64, 64, dtype=torch.float64)
-    torch.linalg.solve(a @ a.T + torch.eye(64, dtype=torch.float64), a)  # MKL's path in this process: the CPU's
-    folder = generate(PINNED, root=tmp_path, workers=2, progress=False)
+    code = ("import sys, torch; from samp.data.generation import generate; a = torch.randn(64, 64, dtype=torch.float64); "
+            "torch.linalg.solve(a @ a.T + torch.eye(64, dtype=torch.float64), a); "
+            f"print(generate({PINNED!r}, root=sys.argv[1], workers=2, progress=False))")
+    env = {k: v for k, v in os.environ.items() if k != "MKL_CBWR"}
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, env=env,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    folder = Path(out.stdout.strip().splitlines()[-1])
     assert folder.name == "bce1d3e51215"
     digests = {f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in sorted(folder.glob("*.mcap"))}
     assert digests == PINNED_FILES, "the generated files differ from those this spec has always given"

@@ -1,6 +1,6 @@
 """Shared fixtures: an isolated disk cache, the robots (loaded once per session) and a small robot SDF.
 
-The suite runs MKL on its CPU-independent code path (`samp.data.generation.REPRODUCIBLE_MKL`, set before
+The suite runs MKL on its CPU-independent code path (`samp.data.lifecycle.REPRODUCIBLE_MKL`, set before
 torch makes its first MKL call, and inherited by every process a test starts): tests that pin bytes (a
 generated dataset's digests) or compare two code paths bit for bit (the robot SDF's needed points against the
 full query, which MKL computes with different kernels for different shapes on some CPUs) then hold on every
@@ -14,7 +14,7 @@ import os
 import pytest
 import torch
 
-from samp.data.generation import reproducible_mkl
+from samp.data.lifecycle import reproducible_mkl
 
 reproducible_mkl()  # importing torch makes no MKL call; this is before the first one (module docstring)
 

@@ -48,7 +48,8 @@ def _root(cfg_or_args) -> Path | None:
 def _generate(overrides: list[str]) -> None:
     from omegaconf import OmegaConf
 
-    from samp.data.generation import GenerationInterrupted, generate, reproducible_mkl
+    from samp.data.generation import GenerationInterrupted, generate
+    from samp.data.lifecycle import reproducible_mkl
 
     reproducible_mkl()  # before anything in this process calls MKL: with workers=1 it plans here
     cfg = _config(overrides)

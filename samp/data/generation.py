@@ -14,14 +14,9 @@ training data (`samp.data.mcap_io`). Scene files collect in a work folder keyed 
 
 Wall-clock times go to the manifest, not into the MCAP files, so the data files, and with them the
 dataset id, depend only on the spec and seed (as long as no problem hits the planner's time limit, whose
-outcome depends on the machine's load). Across machines too: the IK's small linear solves go through
-torch's MKL, which picks its kernels by CPU (AVX2, AVX-512, ...) and rounds differently with each, and a
-last-bit difference there sends OMPL down another path. Planning processes therefore ask MKL for its
-CPU-independent code path (`REPRODUCIBLE_MKL`) before their first MKL call: the spawned workers
-(`workers` >= 2) always, and the process of `python -m samp.data generate`, which plans in itself with
-`workers=1`. A caller's process that plans in itself (`generate(..., workers=1)` from Python, e.g. a
-training recipe) keeps MKL's path for its CPU, so its ids can differ across machines: MKL fixes its path at
-the first call, and the CPU-independent one is 2 to 5 times slower for the large products of training.
+outcome depends on the machine's load), and on every x86 CPU: the processes that plan take MKL's
+CPU-independent path (`samp.data.lifecycle.reproducible_mkl`): the workers (`workers` >= 2, also for one
+scene) and `python -m samp.data generate`; a caller's own process planning with `workers=1` keeps its own.
 """
 
 from __future__ import annotations
@@ -41,7 +36,7 @@ import numpy as np
 import torch
 
 from samp.data.mcap_io import SceneRecord, write_scene_file
-from samp.data.lifecycle import die_with_parent
+from samp.data.lifecycle import die_with_parent, reproducible_mkl
 from samp.data.merging import EVAL_PREFIX, build_manifest, link_or_copy, merge_lock
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
@@ -49,8 +44,6 @@ from samp.data.spec import DatasetSpec, SceneJob, load_spec
 __all__ = ["GenerationError", "GenerationInterrupted", "generate", "merge", "work_dir"]
 
 TIMING_KEYS = ("planning_time", "solve_time", "simplify_time")  # wall clock: manifest only
-# Intel MKL's conditional numerical reproducibility: the same results on every x86 CPU (module docstring).
-REPRODUCIBLE_MKL = {"MKL_CBWR": "COMPATIBLE"}
 SIDECAR = ".json"
 # derive_seed(scene seed, KEY[, problem]): the seed streams of a scene's problems and plans. Demonstrations
 # and evaluation problems draw from different streams, so no evaluation problem repeats a demonstration.
@@ -85,13 +78,6 @@ def _file_metadata(spec: DatasetSpec, job: SceneJob, asset_hash: str, config_has
 _ROBOTS: dict[str, object] = {}  # per process: robots are loaded once
 _SPECS: dict[str, tuple] = {}  # per process: the spec in use, validated (`_loaded`)
 _TICKS = None  # per worker process: queue of finished-problem ticks for the progress bar
-
-
-def reproducible_mkl() -> None:
-    """Ask MKL for its CPU-independent results (`REPRODUCIBLE_MKL`) unless the environment sets them. Effective
-    only before the process's first MKL call: a process that plans calls it first thing."""
-    for key, value in REPRODUCIBLE_MKL.items():
-        os.environ.setdefault(key, value)
 
 
 def _init_worker(ticks, parent: int | None = None) -> None:

@@ -1,5 +1,11 @@
-"""Process lifetime of generation's helpers, kept free of heavy imports: the spawned manager process unpickles
-`die_with_parent` by importing this module, which then costs it no torch, pybullet or OMPL start-up."""
+"""Process set-up of generation's helpers, kept free of heavy imports: the spawned manager process unpickles
+`die_with_parent` by importing this module, which then costs it no torch, pybullet or OMPL start-up.
+
+`reproducible_mkl`: the IK's small linear solves go through torch's MKL, which picks its kernels by CPU
+(AVX2, AVX-512, ...) and rounds differently with each; a last-bit difference sends OMPL down another path
+and gives the dataset another id. A process that plans asks MKL for its CPU-independent path first. MKL
+fixes its path at its first call, and that path is 2 to 5 times slower for training's large products, so a
+training process is never switched (README, "The same bytes on every CPU")."""
 
 from __future__ import annotations
 
@@ -7,7 +13,17 @@ import os
 import signal
 import sys
 
-__all__ = ["die_with_parent"]
+__all__ = ["REPRODUCIBLE_MKL", "die_with_parent", "reproducible_mkl"]
+
+# Intel MKL's conditional numerical reproducibility: the same results on every x86 CPU.
+REPRODUCIBLE_MKL = {"MKL_CBWR": "COMPATIBLE"}
+
+
+def reproducible_mkl() -> None:
+    """Ask MKL for its CPU-independent results unless the environment sets them; effective only before the
+    process's first MKL call."""
+    for key, value in REPRODUCIBLE_MKL.items():
+        os.environ.setdefault(key, value)
 
 
 def die_with_parent(parent: int) -> None:

@@ -212,7 +212,8 @@ def test_a_pinned_spec_gives_the_files_it_always_gave(tmp_path):
     import subprocess
     import sys
 
-    code = ("import sys, torch; from samp.data.generation import generate; a = torch.randn(64, 64, dtype=torch.float64); "
+    code = ("import sys, torch; from samp.data.generation import generate; "
+            "a = torch.randn(64, 64, dtype=torch.float64); "
             "torch.linalg.solve(a @ a.T + torch.eye(64, dtype=torch.float64), a); "
             f"print(generate({PINNED!r}, root=sys.argv[1], workers=2, progress=False))")
     env = {k: v for k, v in os.environ.items() if k != "MKL_CBWR"}

@@ -136,11 +136,36 @@ def max_over_points(mlp: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
         return h
 
     if not torch.is_grad_enabled() or not (x.requires_grad or any(p.requires_grad for p in mlp.parameters())):
-        return tail(trunk(x).amax(dim=1))
+        return tail(_trunk_without_graph(layers, x).amax(dim=1))
     with torch.no_grad():
-        winners = first_argmax(trunk(x))  # (B, F) the point that holds each feature's maximum
+        winners = first_argmax(_trunk_without_graph(layers, x, search=True))  # (B, F) the point that holds each feature's maximum
     picked = x.gather(1, winners[..., None].expand(-1, -1, x.shape[-1]))  # (B, F, D)
     return tail(trunk(picked).diagonal(dim1=1, dim2=2))  # feature f of the point that won feature f
+
+
+def _trunk_without_graph(layers: list[nn.Module], h: torch.Tensor, search: bool = False) -> torch.Tensor:
+    """Linear and ELU layers over every point without autograd: the product, then the bias added and the ELU
+    applied in place. A CPU `addmm` with a bias over 51 200 rows (50 x 1024 points) costs about twice the plain
+    product plus the add, and the in-place ELU saves a tensor of that size per layer.
+
+    `search`: the values only pick the winning points (`max_over_points`), so ELU's negative side is taken as
+    exp(z) - 1 instead of expm1(z): at most 6e-8 away, at half the time of CPU ELU (whose expm1 is not
+    vectorised). Two points within that of each other may then swap as the winner, which moves the maximum by
+    as much; the winners' values themselves are computed again exactly."""
+    own = False  # whether h is a tensor made here (never write into the caller's input)
+    with torch.no_grad():
+        for layer in layers:
+            if isinstance(layer, nn.Linear):
+                h, own = torch.matmul(h, layer.weight.t()), True
+                if layer.bias is not None:
+                    h.add_(layer.bias)
+            elif isinstance(layer, nn.ELU) and own and search and layer.alpha == 1.0:
+                h = torch.maximum(h, h.clamp(max=0).exp_().sub_(1))
+            elif isinstance(layer, nn.ELU) and own:
+                h = torch.nn.functional.elu_(h, layer.alpha)
+            else:
+                h, own = layer(h), True
+        return h
 
 
 def _mlp(sizes: list[int], last_activation: bool = True) -> nn.Sequential:

@@ -138,7 +138,7 @@ def max_over_points(mlp: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
     if not torch.is_grad_enabled() or not (x.requires_grad or any(p.requires_grad for p in mlp.parameters())):
         return tail(_trunk_without_graph(layers, x).amax(dim=1))
     with torch.no_grad():
-        winners = first_argmax(_trunk_without_graph(layers, x, search=True))  # (B, F) the point that holds each feature's maximum
+        winners = first_argmax(_trunk_without_graph(layers, x, search=True))  # (B, F) each feature's winning point
     picked = x.gather(1, winners[..., None].expand(-1, -1, x.shape[-1]))  # (B, F, D)
     return tail(trunk(picked).diagonal(dim1=1, dim2=2))  # feature f of the point that won feature f
 
@@ -150,14 +150,15 @@ def _trunk_without_graph(layers: list[nn.Module], h: torch.Tensor, search: bool 
 
     `search`: the values only pick the winning points (`max_over_points`), so ELU's negative side is taken as
     exp(z) - 1 instead of expm1(z): at most 6e-8 away, at half the time of CPU ELU (whose expm1 is not
-    vectorised). Two points within that of each other may then swap as the winner, which moves the maximum by
-    as much; the winners' values themselves are computed again exactly."""
+    vectorised), and a last Linear layer's bias, the same for every point, is left out. Two points within
+    rounding of each other may then swap as the winner, which moves the maximum by as much; the winners'
+    values themselves are computed again exactly."""
     own = False  # whether h is a tensor made here (never write into the caller's input)
     with torch.no_grad():
-        for layer in layers:
+        for i, layer in enumerate(layers):
             if isinstance(layer, nn.Linear):
                 h, own = torch.matmul(h, layer.weight.t()), True
-                if layer.bias is not None:
+                if layer.bias is not None and not (search and i == len(layers) - 1):  # a bias moves no maximum
                     h.add_(layer.bias)
             elif isinstance(layer, nn.ELU) and own and search and layer.alpha == 1.0:
                 h = torch.maximum(h, h.clamp(max=0).exp_().sub_(1))

@@ -74,11 +74,12 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         robot_sdf_tables: K > 0 reads the robot SDF between a point and the next link along the chain
             from tables of K joint angles (`samp.robot_sdf.robot_points`, an approximation of the robot
             SDF network measured on the benchmark); 0 evaluates the network for every pair (exact).
-        robot_sdf_pairs: the robot SDF input of a rollout step: "all" pairs of a point and a link (exact, up
-            to the tables), or "near": only the pairs no arm joint or one arm joint apart (the rigid part and the
-            tables), skipping the network for the rest, an approximation measured on the benchmark (README,
-            "What a step costs"). None (the default): "near" with tables, "all" without (robot_sdf_tables=0).
-            Only rollouts (`SAMPStepPolicy`) read it: training and validation losses use every pair.
+        robot_sdf_pairs: the robot SDF input of the network at q_t, in training and in rollouts: "all" pairs
+            of a point and a link (exact, up to the tables), or "near": only the pairs no arm joint or one arm
+            joint apart (the rigid part and the tables), skipping the network for the rest, an approximation
+            measured on the benchmark (README, "What a step costs" and "The training step"). None (the
+            default): "near" with tables, "all" without (robot_sdf_tables=0). The collision loss's weights at
+            the prediction always use every pair.
         optimizer, scheduler: `_partial_` config nodes (conf/optimizer/), see `PolicySystemBase`.
         robot_sdf_payload: the robot SDF as a checkpoint stores it (instead of `robot_sdf`).
     """
@@ -173,7 +174,8 @@ class PolicySystem(PolicySystemBase, kind="samp"):
     def _losses(self, batch: dict) -> dict[str, torch.Tensor]:
         q, q_next, scene = batch[BATCH_Q], batch[BATCH_NEXT], batch[BATCH_SCENE]
         present, local = scene.unique(return_inverse=True)  # each distinct scene is encoded once
-        q_hat = self.predict(q, batch[BATCH_GOAL], self.encode(self.grids[present]), local, self.bounds)
+        q_hat = self.predict(q, batch[BATCH_GOAL], self.encode(self.grids[present]), local, self.bounds,
+                             near=self.robot_sdf_pairs == "near")
         poses = self.robot.link_poses(q_hat)
         pred_points = self.robot.transform_points(q_hat, poses)
         with torch.no_grad():

@@ -70,10 +70,10 @@ def test_step_is_the_network_fed_by_the_generic_robot_sdf_query(run_dir):
     assert torch.allclose(got, denormalize(u, system.limits), atol=1e-5)
 
 
-def test_near_pairs_feed_the_rigid_and_table_part_in_rollouts_only(run_dir):
+def test_near_pairs_feed_the_rigid_and_table_part_to_the_network(run_dir):
     """robot_sdf_pairs=near: a rollout step is the network fed by the robot SDF without the pairs two or more
     joints apart, the same values as the `needed` mask path asking for no point (an upper bound of the
-    distances over every pair with the same tables); the losses keep every pair; bad settings are refused."""
+    distances over every pair with the same tables); bad settings are refused."""
     policy = load_policy(run_dir, robot_sdf_pairs="near")
     system = policy.system
     scene, _ = _problem(policy)
@@ -92,12 +92,35 @@ def test_near_pairs_feed_the_rigid_and_table_part_in_rollouts_only(run_dir):
                        system.net.encode_scenes(env.grids), scenes, system.bounds, n_e=system.n_e)
     assert torch.allclose(got, denormalize(u, system.limits), atol=1e-5)
     assert (near >= every).all() and (near > every + 1e-3).any()  # the skipped pairs mattered here
-    # what the losses read (`predict` without near), in training as in validation, keeps every pair
     assert torch.equal(system.robot_features(q)[1], every) and torch.equal(system.robot_features(q, near=True)[1], near)
     with pytest.raises(ValueError, match="robot_sdf_tables >= 2"):
         load_policy(run_dir, robot_sdf_tables=0, robot_sdf_pairs="near")
     with pytest.raises(ValueError, match="robot_sdf_pairs must be one of"):
         load_policy(run_dir, robot_sdf_pairs="far")
+
+
+def test_training_feeds_the_network_the_robot_sdf_input_of_its_rollouts(tiny_datamodule, robots, small_robot_sdf):
+    """The losses' prediction at q_t reads the robot SDF with the system's robot_sdf_pairs, as a rollout step
+    does: the network's robot SDF input in `_losses` is `robot_features(q_t, near)` for near and for all pairs
+    (the query itself is the oracle), on a batch whose noisy q_t reach the pairs that near skips."""
+    from samp.names import BATCH_Q
+
+    dm = tiny_datamodule(8)
+    payload = small_robot_sdf(robots["panda"], spread=True)
+    batch = next(iter(dm.train_dataloader()))
+    lo, hi = torch.tensor([-2.8, -1.7, -2.8, -3.0, -2.8, 0.0, -2.8]), torch.tensor([2.8, 1.7, 2.8, -0.1, 2.8, 3.7, 2.8])
+    batch[BATCH_Q] = lo + (hi - lo) * torch.rand(batch[BATCH_Q].shape, generator=torch.Generator().manual_seed(2))
+    inputs = {}
+    for pairs in ("near", "all"):
+        system = PolicySystem(robot="panda", robot_sdf_payload=payload, model=SMALL_NET, robot_sdf_pairs=pairs)
+        system.bind(dm.binding)
+        seen = []
+        hook = system.net.register_forward_pre_hook(lambda module, args: seen.append(args[3]))
+        system._losses(batch)
+        hook.remove()
+        inputs[pairs] = seen[0]
+        assert torch.equal(seen[0], system.robot_features(batch[BATCH_Q], near=pairs == "near")[1])
+    assert (inputs["near"] >= inputs["all"]).all() and (inputs["near"] > inputs["all"] + 1e-3).any()
 
 
 def test_bench_rollout_step_script_times_the_policys_own_step(run_dir):

@@ -36,7 +36,7 @@ demo: install
 	$(PY) -m samp.train experiment=quickstart
 
 test: install
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 test-fast: install
 	$(PY) -m pytest -q -m "not slow"

@@ -161,7 +161,7 @@ def _trunk_without_graph(layers: list[nn.Module], h: torch.Tensor, search: bool 
                 if layer.bias is not None and not (search and i == len(layers) - 1):  # a bias moves no maximum
                     h.add_(layer.bias)
             elif isinstance(layer, nn.ELU) and own and search and layer.alpha == 1.0:
-                h = torch.maximum(h, h.clamp(max=0).exp_().sub_(1))
+                h = torch.maximum(h, h.clamp(max=0).exp_().sub_(1), out=h)
             elif isinstance(layer, nn.ELU) and own:
                 h = torch.nn.functional.elu_(h, layer.alpha)
             else:

@@ -41,7 +41,9 @@ class PlanResult:
     success: bool
     trajectory: np.ndarray | None
     reason: str
-    stats: dict = field(default_factory=dict)  # planning_time (s), attempts, joint_path_length (rad), ...
+    # planning_time (s), attempts, joint_path_length (rad), motion_checks (of the attempts not stopped by the
+    # clock, whose counts depend on the machine's speed), ...
+    stats: dict = field(default_factory=dict)
     q_start: np.ndarray | None = None  # (n,)
     q_goal: np.ndarray | None = None  # (n,)
 
@@ -174,11 +176,15 @@ class ExpertPlanner:
         out = plan_once(self.robot, self.cfg, valid, q_start, q_goal, seed, self.sampler)
         stats["solve_time"] += out.solve_time
         stats["simplify_time"] += out.simplify_time
-        stats["motion_checks"] += out.motion_checks
+        cfg = self.cfg
+        gave_up = cfg.planner in ANYTIME and cfg.max_checks and out.motion_checks >= cfg.max_checks
+        if out.solved or gave_up:
+            # An attempt stopped by the clock made as many checks as the machine's speed allowed: counting them
+            # would make the stored statistics, and so the dataset's bytes and id, differ from run to run.
+            stats["motion_checks"] += out.motion_checks
         if out.solved:
             return out.path, ""
-        cfg = self.cfg
-        if cfg.planner in ANYTIME and cfg.max_checks and out.motion_checks >= cfg.max_checks:
+        if gave_up:
             return None, f"planner gave up: {cfg.planner} found no solution in {cfg.max_checks} motion checks (OMPL: {out.status})"
         return None, f"planner timeout: {cfg.planner} found no exact solution in {cfg.time_limit} s (OMPL: {out.status})"
 

@@ -216,6 +216,26 @@ def test_timeout_is_a_failure_with_reason(panda, scene, blocked):
     assert result.stats["attempts"] == 2
 
 
+def test_a_timed_out_attempt_leaves_no_machine_dependent_count(panda, scene, blocked, monkeypatch):
+    """How many motion checks an attempt stopped by the clock made depends on the machine's speed, so the stored
+    statistics (part of a dataset's bytes and id) count only the attempts that ended otherwise: here the first
+    of two real OMPL attempts is reported as timed out, and the count is the second attempt's alone."""
+    from dataclasses import replace
+
+    real, counts = planner_module.plan_once, []
+
+    def first_times_out(*args, **kwargs):
+        out = real(*args, **kwargs)
+        counts.append(out.motion_checks)
+        return replace(out, solved=False, path=None, status="Timeout") if len(counts) == 1 else out
+
+    monkeypatch.setattr(planner_module, "plan_once", first_times_out)
+    with ExpertPlanner(panda, scene, load_expert_config(attempts=2)) as planner:
+        result = planner.plan(*blocked, seed=0)
+    assert result.success and result.stats["attempts"] == 2
+    assert counts[0] > 0 and result.stats["motion_checks"] == counts[1] > 0
+
+
 def test_failed_dense_check_is_retried_then_reported(panda, scene, blocked, monkeypatch):
     monkeypatch.setattr(planner_module, "first_invalid_segment", lambda *args, **kwargs: 7)
     with ExpertPlanner(panda, scene, load_expert_config(attempts=2)) as planner:

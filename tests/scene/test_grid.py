@@ -72,31 +72,6 @@ def test_batched_multichannel_sampling_matches_single():
     assert torch.allclose(out[1, 2], 2 * sample_grid(grid, pts[1], BOUNDS))
 
 
-def test_learned_volume_at_fixed_points_has_grid_samples_values_and_gradient():
-    """Training reads learned feature volumes at points that need no gradient through a scatter of its own
-    (`_SampleAtFixedPoints`); torch's grid_sample and its autograd are the oracle: the same values, and the
-    same gradient with respect to the volume, for points inside, outside (border padding) and exactly on the
-    bounds, in a batch of two non-cubic volumes, and with a non-contiguous output gradient."""
-    import torch.nn.functional as F
-
-    from samp.scene.grid import grid_coords
-
-    torch.manual_seed(0)
-    vol = torch.randn(2, 3, 7, 6, 5, requires_grad=True)  # (B, C, x, y, z)
-    lo, hi = torch.tensor(BOUNDS)
-    pts = lo + (hi - lo) * (torch.rand(2, 400, 3) * 1.4 - 0.2)  # about half of them outside on some axis
-    pts[0, :3], pts[1, :3] = hi, lo  # exactly on the bounds
-    out = sample_grid(vol, pts, BOUNDS)
-    coords = grid_coords(pts, BOUNDS)[:, :, None, None, :]
-    want = F.grid_sample(vol, coords, mode="bilinear", padding_mode="border", align_corners=True)[..., 0, 0]
-    assert torch.equal(out, want)
-    w = torch.randn(2, 400, 3).transpose(1, 2)  # a non-contiguous gradient, as a transposed read gives
-    (got_grad,) = torch.autograd.grad(out, vol, w)
-    (want_grad,) = torch.autograd.grad(want, vol, w)
-    torch.testing.assert_close(got_grad, want_grad, rtol=1e-5, atol=1e-5)
-    assert want_grad.abs().max() > 1  # the gradient is not trivially zero
-
-
 def test_anchor_grid_is_cached_by_scene_resolution_and_bounds(tmp_path, monkeypatch):
     monkeypatch.setenv("SAMP_CACHE_DIR", str(tmp_path))
     scene = generate_scene("blocks", seed=1)

@@ -177,7 +177,7 @@ class ExpertPlanner:
         stats["solve_time"] += out.solve_time
         stats["simplify_time"] += out.simplify_time
         cfg = self.cfg
-        gave_up = cfg.planner in ANYTIME and cfg.max_checks and out.motion_checks >= cfg.max_checks
+        gave_up = bool(cfg.planner in ANYTIME and cfg.max_checks and out.motion_checks >= cfg.max_checks)
         if out.solved or gave_up:
             # An attempt stopped by the clock made as many checks as the machine's speed allowed: counting them
             # would make the stored statistics, and so the dataset's bytes and id, differ from run to run.

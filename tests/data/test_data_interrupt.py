@@ -66,8 +66,11 @@ def _start(root, *extra, hold: Path | None = None) -> subprocess.Popen:
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     if hold is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(hold), *filter(None, [env.get("PYTHONPATH")])])
+    # SIGINT at its default, as a terminal's foreground command has it: a suite started as a background job of
+    # a non-interactive shell runs with SIGINT ignored, which the CLI would inherit and the signal would not stop.
     return subprocess.Popen([sys.executable, "-m", "samp.data", "generate", *OVERRIDES, f"root={root}", "progress=false",
-                             "workers=2", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                             "workers=2", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _workers(proc) -> list[psutil.Process]:

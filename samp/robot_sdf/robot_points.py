@@ -94,7 +94,8 @@ class SelfDistances:
         keep = (bound < self.base[m] + _TABLE_MARGIN + _REACH * step).any(dim=0)
         m, l, joint, u = m[keep], l[keep], joint[keep], u[:, keep].transpose(0, 1)  # u: (P, K, 3)
         values = sdf._pair_values(u.reshape(-1, 3), l.repeat_interleave(K)).view(-1, K)
-        self.table, self.table_point, self.table_joint = values, m, joint
+        self.table, self.table_point, self.table_joint = values.contiguous(), m, joint
+        self.table_row_start = torch.arange(len(m), device=m.device) * K  # where each table starts in the flat view
         self.table_lo, self.table_span = lo[joint], (hi - lo)[joint]
 
     def query(self, q: torch.Tensor, points: torch.Tensor, poses: torch.Tensor,
@@ -111,8 +112,9 @@ class SelfDistances:
             t = ((q[:, self.table_joint] - self.table_lo) / self.table_span).clamp(0, 1) * (self.samples - 1)  # (B, P)
             i = t.nan_to_num(0).floor().clamp(max=self.samples - 2).long()
             f = t - i  # NaN where q is: the value becomes NaN too, as the network's would
-            rows = torch.arange(len(self.table_point), device=q.device)
-            v = self.table[rows, i] * (1 - f) + self.table[rows, i + 1] * f
+            flat = self.table.view(-1)  # one flat index (row * K + i) gathers faster than a (row, i) pair
+            at = i + self.table_row_start
+            v = flat[at] * (1 - f) + flat[at + 1] * f
             out.view(-1).scatter_reduce_(0, (offset + self.table_point).view(-1), v.view(-1), "amin")
         if needed is None:
             u = sdf.link_coords(points, q, poses)  # (B, M, L, 3)

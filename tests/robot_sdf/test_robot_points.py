@@ -36,12 +36,15 @@ def test_exact_path_equals_every_pair_evaluated(trained_sdf, batch):
 @pytest.mark.parametrize("tables", [0, 64])
 def test_needed_points_are_exact_and_the_others_upper_bounds(trained_sdf, tables):
     """`needed` restricts the network pairs to some points (the collision loss asks only where its hinge
-    acts): those values equal the full query's, and the others never fall below the true distance."""
+    acts): those values equal the full query's (up to float rounding), and the others never fall below the true
+    distance."""
     q = _configurations(trained_sdf.robot, 12, seed=21)
     full = trained_sdf.at_robot_points(q, tables=tables)
     needed = torch.rand(full.shape, generator=torch.Generator().manual_seed(1)) < 0.2
     got = trained_sdf.at_robot_points(q, tables=tables, needed=needed)
-    assert torch.equal(got[needed], full[needed])
+    # the same pairs through the network, batched with other pairs than in the full query: equal up to the
+    # product's float32 rounding, which BLAS may order by batch size on some CPUs (1 ulp seen on an AMD EPYC)
+    assert torch.allclose(got[needed], full[needed], rtol=1e-6, atol=1e-8)
     assert (got[~needed] >= full[~needed] - 1e-7).all() and (got[~needed] > full[~needed] + 1e-3).any()
     none = trained_sdf.at_robot_points(q, tables=tables, needed=torch.zeros_like(needed))
     assert torch.equal(none[~needed], got[~needed])  # a point's value depends on whether it is needed only

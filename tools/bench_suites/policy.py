@@ -200,35 +200,48 @@ def _rollout_against_checkout(args, metrics: dict) -> list[list]:
             ["  largest difference of the first predictions", f"{diff:.1e} rad", "", ""]]
 
 
+# Alternating rounds of the training step against --baseline-src: one process each per round, so a slow
+# spell of the machine falls on both checkouts; the ratio reported is the median of the rounds' ratios.
+ROUNDS = 3
+
+
 def _against_checkout(args, metrics: dict) -> list[list]:
     """Training samples per second of the quickstart network at B = 50, this checkout against
-    --baseline-src, each in its own process in this run; and this checkout's step at the older settings (exact
-    robot SDF at every pair, bounds registration, BatchNorm), timed too, whose loss on the same batch must match."""
+    --baseline-src, each in its own process, alternately for `ROUNDS` rounds in this run; and this checkout's
+    step at the older settings (exact robot SDF at every pair, bounds registration, BatchNorm), timed too,
+    whose loss on the same batch must match."""
     from pathlib import Path
 
     if not args.robot_sdf:
         raise SystemExit("--baseline-src needs --robot-sdf ARTIFACT (a trained robot_sdf.pt): an untrained robot SDF "
                          "culls pairs unlike a trained one")
     here = str(Path(__file__).resolve().parents[2])
-    new, old = _step_in_process(here, args), _step_in_process(str(args.baseline_src), args)
+    rounds = [(_step_in_process(here, args), _step_in_process(str(args.baseline_src), args)) for _ in range(ROUNDS)]
     exact = _step_in_process(here, args, "--exact")
+    ratios = [o["seconds_per_step"] / n["seconds_per_step"] for n, o in rounds]
+    cpu_ratios = [o["cpu_seconds_per_step"] / n["cpu_seconds_per_step"] for n, o in rounds]
+    new_s = statistics.median(n["seconds_per_step"] for n, _ in rounds)
+    old_s = statistics.median(o["seconds_per_step"] for _, o in rounds)
+    new, old = rounds[0]
     key = f"n{args.anchors[0]}/checkout"
-    metrics.update({f"{key}/train_samples_per_s": B / new["seconds_per_step"],
-                    f"{key}/baseline_train_samples_per_s": B / old["seconds_per_step"],
-                    f"{key}/train_speedup": old["seconds_per_step"] / new["seconds_per_step"],
-                    f"{key}/train_cpu_speedup": old["cpu_seconds_per_step"] / new["cpu_seconds_per_step"],
-                    f"{key}/exact_settings_train_speedup": old["seconds_per_step"] / exact["seconds_per_step"],
+    metrics.update({f"{key}/train_samples_per_s": B / new_s, f"{key}/baseline_train_samples_per_s": B / old_s,
+                    f"{key}/train_speedup": statistics.median(ratios),
+                    **{f"{key}/train_speedup_round{i}": r for i, r in enumerate(ratios)},
+                    f"{key}/train_cpu_speedup": statistics.median(cpu_ratios),
+                    f"{key}/exact_settings_train_speedup": old_s / exact["seconds_per_step"],
                     f"{key}/loss": new["loss"], f"{key}/loss_exact_settings": exact["loss"],
                     f"{key}/baseline_loss": old["loss"]})
     rel = abs(exact["loss"] - old["loss"]) / abs(old["loss"])
-    return [[f"train step B={B}, n_e={args.anchors[0]} ({new['threads']} threads), vs {args.baseline_src}",
-             f"{B / new['seconds_per_step']:.0f} samples/s", f"{B / old['seconds_per_step']:.0f} samples/s",
-             f"{old['seconds_per_step'] / new['seconds_per_step']:.2f}x"],
-            ["  CPU seconds per step", f"{new['cpu_seconds_per_step']:.3f} s", f"{old['cpu_seconds_per_step']:.3f} s",
-             f"{old['cpu_seconds_per_step'] / new['cpu_seconds_per_step']:.2f}x"],
+    return [[f"train step B={B}, n_e={args.anchors[0]} ({new['threads']} threads), vs {args.baseline_src}: median of "
+             f"{ROUNDS} alternating rounds", f"{B / new_s:.0f} samples/s", f"{B / old_s:.0f} samples/s",
+             f"{statistics.median(ratios):.2f}x"],
+            ["  each round's ratio", "", "", " ".join(f"{r:.2f}x" for r in ratios)],
+            ["  CPU seconds per step", f"{statistics.median(n['cpu_seconds_per_step'] for n, _ in rounds):.3f} s",
+             f"{statistics.median(o['cpu_seconds_per_step'] for _, o in rounds):.3f} s",
+             f"{statistics.median(cpu_ratios):.2f}x"],
             ["  at the older settings (exact robot SDF, all pairs, BatchNorm, bounds)",
-             f"{B / exact['seconds_per_step']:.0f} samples/s", f"{B / old['seconds_per_step']:.0f} samples/s",
-             f"{old['seconds_per_step'] / exact['seconds_per_step']:.2f}x"],
+             f"{B / exact['seconds_per_step']:.0f} samples/s", f"{B / old_s:.0f} samples/s",
+             f"{old_s / exact['seconds_per_step']:.2f}x"],
             ["  loss on the same batch (older settings / defaults)", f"{exact['loss']:.7f} / {new['loss']:.7f}",
              f"{old['loss']:.7f}", f"rel. diff {rel:.1e}"]]
 

@@ -163,7 +163,7 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
                 trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None,
                             weights_only=None if ckpt is None else not trusted(_trust(cfg)))
             fit_s = time.perf_counter() - start + ((folder.read().get("fit_time_s") or 0.0) if ckpt else 0.0)
-            trainer.save_checkpoint(folder.last_checkpoint)
+            trainer.save_checkpoint(folder.last_checkpoint, weights_only=False)  # the full state, to resume from
             if not rank_zero:
                 return folder
             metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}

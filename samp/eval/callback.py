@@ -117,7 +117,7 @@ class EvalCallback(pl.Callback):
         if self.save_best and (self.best is None or score > self.best):
             self.best = score
             folder = Path(self.dirpath) if self.dirpath else Path(trainer.default_root_dir) / CHECKPOINT_DIR
-            trainer.save_checkpoint(folder / BEST_CKPT)
+            trainer.save_checkpoint(folder / BEST_CKPT, weights_only=False)
 
     # ----------------------------------------------------------------- resuming keeps the best score
     def state_dict(self) -> dict:

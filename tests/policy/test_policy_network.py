@@ -79,16 +79,20 @@ def test_goal_features_are_the_documented_functions_of_start_and_goal():
     torch.testing.assert_close(goal_features(u_t, u_g, extra=False), torch.cat([u_t, u_g], dim=1))
 
 
-def test_max_over_points_has_amax_values_and_gradients():
+@pytest.mark.parametrize("B, M", [(5, 300), (9, 1024)])
+def test_max_over_points_has_amax_values_and_gradients(B, M):
     """The PointNet's max through the winning points only (`max_over_points`) against amax over all points:
     the same values and the same parameter and input gradients (a wrong winner, a transposed diagonal or a
-    missing point would change them)."""
+    missing point would change them). 9 x 1024 points go through the pass over every point in three chunks
+    of whole samples (4, 4 and 1), 5 x 300 in one."""
+    from samp.policy import network
     from samp.policy.network import _mlp, max_over_points
 
     torch.manual_seed(3)
     mlp = _mlp([4, 16, 32, 24])
-    x = torch.randn(5, 300, 4, requires_grad=True)
-    w = torch.randn(5, 24)
+    x = torch.randn(B, M, 4, requires_grad=True)
+    w = torch.randn(B, 24)
+    assert (B * M > network._CHUNK_POINTS) == (M == 1024)  # the second case is the chunked one
     grads = []
     for fn in (lambda: mlp(x).amax(dim=1), lambda: max_over_points(mlp, x)):
         mlp.zero_grad()

@@ -218,11 +218,14 @@ def _against_checkout(args, metrics: dict) -> list[list]:
     here = str(Path(__file__).resolve().parents[2])
     rounds = [(_step_in_process(here, args), _step_in_process(str(args.baseline_src), args)) for _ in range(ROUNDS)]
     exact = _step_in_process(here, args, "--exact")
+
+    def median(side: int, key: str) -> float:  # side 0: this checkout, 1: the baseline
+        return statistics.median(r[side][key] for r in rounds)
+
     ratios = [o["seconds_per_step"] / n["seconds_per_step"] for n, o in rounds]
     cpu_ratios = [o["cpu_seconds_per_step"] / n["cpu_seconds_per_step"] for n, o in rounds]
-    new_s = statistics.median(n["seconds_per_step"] for n, _ in rounds)
-    old_s = statistics.median(o["seconds_per_step"] for _, o in rounds)
-    new, old = rounds[0]
+    new_s, old_s = median(0, "seconds_per_step"), median(1, "seconds_per_step")
+    new, old = rounds[0]  # the losses and thread count (the same in every round)
     key = f"n{args.anchors[0]}/checkout"
     metrics.update({f"{key}/train_samples_per_s": B / new_s, f"{key}/baseline_train_samples_per_s": B / old_s,
                     f"{key}/train_speedup": statistics.median(ratios),
@@ -236,9 +239,8 @@ def _against_checkout(args, metrics: dict) -> list[list]:
              f"{ROUNDS} alternating rounds", f"{B / new_s:.0f} samples/s", f"{B / old_s:.0f} samples/s",
              f"{statistics.median(ratios):.2f}x"],
             ["  each round's ratio", "", "", " ".join(f"{r:.2f}x" for r in ratios)],
-            ["  CPU seconds per step", f"{statistics.median(n['cpu_seconds_per_step'] for n, _ in rounds):.3f} s",
-             f"{statistics.median(o['cpu_seconds_per_step'] for _, o in rounds):.3f} s",
-             f"{statistics.median(cpu_ratios):.2f}x"],
+            ["  CPU seconds per step", f"{median(0, 'cpu_seconds_per_step'):.3f} s",
+             f"{median(1, 'cpu_seconds_per_step'):.3f} s", f"{statistics.median(cpu_ratios):.2f}x"],
             ["  at the older settings (exact robot SDF, all pairs, BatchNorm, bounds)",
              f"{B / exact['seconds_per_step']:.0f} samples/s", f"{B / old_s:.0f} samples/s",
              f"{old_s / exact['seconds_per_step']:.2f}x"],

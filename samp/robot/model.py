@@ -253,6 +253,11 @@ class Robot(nn.Module):
             fk.to(self.dtype, self.device)
         return fk
 
+    @property
+    def serial_fk(self) -> SerialFK | None:
+        """The collision links' `SerialFK` (float64 masters), or None when the arm is not serial for them."""
+        return self._serial
+
     def link_poses_numpy(self, q: np.ndarray) -> np.ndarray:
         """q (B, n) float64 numpy -> (B, L, 4, 4) float64 numpy poses of the collision links, for the CPU
         collision checks (`samp.robot.bodies.LinkBodies`): the serial arm's numpy FK, or the general FK."""

@@ -94,17 +94,23 @@ class SerialFK:
         self.eye = torch.eye(4, dtype=dtype, device=device)
         return self
 
-    def numpy(self, q: np.ndarray) -> np.ndarray:
-        """q (B, n) float64 -> (B, L, 4, 4) float64 link poses, in numpy from the float64 masters: for the
-        few configurations of a collision query, where torch's per-call overhead dominates (~10x faster at
-        B <= 32). Agrees with `__call__` in float64 to rounding (~1e-15)."""
+    def numpy_constants(self) -> tuple[np.ndarray, ...]:
+        """The float64 constants of `numpy` (and of `samp.sim.broadphase.serial_link_poses`): A (n, 4, 4),
+        D (L, 4, 4), unit axes (n, 3), their cross-product matrices K and K @ K (n, 3, 3), which joints are
+        revolute (n,) and, per link, the index into the running product (n + 1 of them) that it takes (L,)."""
         if not hasattr(self, "_np"):
             A, D, axes = (x.numpy() for x in self._masters)
             K = np.zeros((len(axes), 3, 3))
             K[:, 0, 1], K[:, 0, 2], K[:, 1, 0], K[:, 1, 2], K[:, 2, 0], K[:, 2, 1] = (
                 -axes[:, 2], axes[:, 1], axes[:, 2], -axes[:, 0], -axes[:, 1], axes[:, 0])
             self._np = (A, D, axes, K, K @ K, self._revolute.numpy(), self._last.numpy() + 1)
-        A, D, axes, K, K2, revolute, take = self._np
+        return self._np
+
+    def numpy(self, q: np.ndarray) -> np.ndarray:
+        """q (B, n) float64 -> (B, L, 4, 4) float64 link poses, in numpy from the float64 masters: for the
+        few configurations of a collision query, where torch's per-call overhead dominates (~10x faster at
+        B <= 32). Agrees with `__call__` in float64 to rounding (~1e-15)."""
+        A, D, axes, K, K2, revolute, take = self.numpy_constants()
         q = np.asarray(q, dtype=np.float64)
         B, n = q.shape
         c, s = np.cos(q)[..., None, None], np.sin(q)[..., None, None]

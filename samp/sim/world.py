@@ -145,6 +145,16 @@ class World:
         self._self_pair_parts[np.arange(len(self._self_pairs))[:, None], self._self_pairs] = 1.0
         limits = robot.joint_limits.double().cpu().numpy()
         self._lower, self._upper = limits[:, 0] - LIMIT_TOLERANCE, limits[:, 1] + LIMIT_TOLERANCE
+        # the compiled broadphase (samp.sim.broadphase) for a serial arm; the numpy one otherwise
+        serial = robot.serial_fk
+        self.compiled = serial is not None
+        if self.compiled:
+            self._fk_constants = serial.numpy_constants()
+            self._part_arrays = (np.ascontiguousarray(self.links.part_links, dtype=np.int64),
+                                 np.ascontiguousarray(self._vertices_t), counts.astype(np.int64),
+                                 self._moving.astype(np.int64), self._obstacle_lo.reshape(-1, 3).copy(),
+                                 self._obstacle_hi.reshape(-1, 3).copy(), self._self_pairs.astype(np.int64),
+                                 self._local_lo.copy(), self._local_hi.copy())
 
     def _allowed_part_pairs(self) -> np.ndarray:
         """(S, 2) indices of part pairs on different links whose link pair is not excluded."""
@@ -186,15 +196,12 @@ class World:
         """
         q, margin = self._check_q(q), self._check_margin(margin)
         hit = self.outside_limits(q) if joint_limits else np.zeros(len(q), dtype=bool)
-        T = self.links.link_poses(q)  # (B, L, 4, 4)
-        lo, hi = self._part_boxes(T)
-        near = self._obstacle_gaps(lo, hi) <= margin  # (B, Pm, K) candidate part-obstacle pairs
-        touch = (self._self_gaps(lo, hi) <= 0.0) & self_collision  # (B, S) candidate part-part pairs
-        touch = self._apart_in_link_frames(T, touch)
+        T, gaps, touch = self._broadphase(q, self_collision)
+        near = gaps <= margin  # (B, Pm, K) candidate part-obstacle pairs
         todo = np.flatnonzero(~hit & (near.any(axis=(1, 2)) | touch.any(axis=1)))
         if len(todo) == 0:
             return hit
-        pos, quat = self.links.pose_arrays(T[todo])  # (b, L, 3), (b, L, 4)
+        pos, quat = self._pose_arrays(T[todo])  # (b, L, 3), (b, L, 4)
         near, touch = near[todo], touch[todo]
         # the parts each configuration's candidate pairs query: only those are posed
         need = np.zeros((len(todo), len(self._parts)), dtype=bool)
@@ -219,10 +226,9 @@ class World:
         parts crossing a concave mesh's surface; minus the depth of the deepest vertex for a part that
         lies wholly inside a closed concave mesh."""
         q = self._check_q(q)
-        T = self.links.link_poses(q)
-        lo, hi = self._part_boxes(T)
-        gaps = self._obstacle_gaps(lo, hi).reshape(len(q), len(self._moving) * len(self.obstacles))  # (B, Pm * K)
-        pos, quat = self.links.pose_arrays(T)  # (B, L, 3), (B, L, 4)
+        T, gaps, _ = self._broadphase(q, self_collision=False)
+        gaps = gaps.reshape(len(q), len(self._moving) * len(self.obstacles))  # (B, Pm * K)
+        pos, quat = self._pose_arrays(T)  # (B, L, 3), (B, L, 4)
         return np.array([self._nearest(T[b], gaps[b], (pos[b], quat[b])) for b in range(len(q))],
                         dtype=np.float64).reshape(len(q))
 
@@ -278,6 +284,28 @@ class World:
         return float(margin)
 
     # ----------------------------------------------------------------- broadphase
+    def _broadphase(self, q: np.ndarray, self_collision: bool, compiled: bool | None = None):
+        """q (B, n) -> link poses T (B, L, 4, 4), box gaps (B, Pm, K) of the moving parts to the obstacles, and
+        the candidate self pairs (B, S) (all False unless `self_collision`): compiled for a serial arm
+        (`samp.sim.broadphase`), else in numpy; `compiled` forces one (the tests compare them)."""
+        if self.compiled if compiled is None else compiled:
+            from samp.sim.broadphase import part_gaps, serial_link_poses
+
+            T = serial_link_poses(q, *self._fk_constants)
+            return (T, *part_gaps(T, *self._part_arrays, bool(self_collision), SELF_SLACK))
+        T = self.links.link_poses(q)
+        lo, hi = self._part_boxes(T)
+        touch = (self._self_gaps(lo, hi) <= 0.0) & self_collision
+        return T, self._obstacle_gaps(lo, hi), self._apart_in_link_frames(T, touch)
+
+    def _pose_arrays(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`LinkBodies.pose_arrays`, the quaternions compiled when the broadphase is."""
+        if not self.compiled:
+            return self.links.pose_arrays(T)
+        from samp.sim.broadphase import quaternions
+
+        return T[..., :3, 3], quaternions(np.ascontiguousarray(T))
+
     def _part_boxes(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """T (B, L, 4, 4) -> the parts' exact world AABBs, lo and hi (B, P, 3)."""
         Tp = T[:, self.links.part_links]  # (B, P, 4, 4)

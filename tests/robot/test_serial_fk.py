@@ -52,6 +52,11 @@ def test_matrix_to_quaternion_matches_scipy():
     ours, theirs = matrix_to_quaternion(R), Rotation.from_matrix(R).as_quat()
     assert np.allclose(np.abs((ours * theirs).sum(axis=1)), 1.0, atol=1e-12)  # the same rotation (q ~ -q)
     assert np.allclose(Rotation.from_quat(ours).as_matrix(), R, atol=1e-12)
+    from samp.sim.broadphase import quaternions  # the collision queries' compiled copy: the same method
+
+    T = np.zeros((len(R), 4, 4))
+    T[:, :3, :3], T[:, 3, 3] = R, 1.0
+    np.testing.assert_allclose(quaternions(T[None])[0], ours, rtol=0, atol=1e-15)
 
 
 @pytest.mark.parametrize("count", [3, 20])  # one gather per point (B <= 8), or one product per link run

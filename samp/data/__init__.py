@@ -8,21 +8,13 @@ Names are imported on first use, so the light commands (`python -m samp.data ls 
 not pay for torch and the planner.
 """
 
-from importlib import import_module
+from samp import lazy_exports
 
-_EXPORTS = {
+_MODULES = {
     "Dataset": "dataset", "open_dataset": "dataset", "write_dataset": "dataset",
     "GenerationError": "generation", "generate": "generation", "merge": "generation",
     "DatasetError": "registry", "list_datasets": "registry", "read_manifest": "registry", "resolve_ref": "registry",
     "verify_dataset": "registry",
     "DatasetSpec": "spec", "available_specs": "spec", "load_spec": "spec",
 }
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'samp.data' has no attribute {name!r}")
-    value = getattr(import_module(f"samp.data.{_EXPORTS[name]}"), name)
-    globals()[name] = value
-    return value
+__getattr__, __all__ = lazy_exports(__name__, {name: f"samp.data.{module}" for name, module in _MODULES.items()})

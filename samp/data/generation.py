@@ -33,10 +33,8 @@ from multiprocessing.managers import SyncManager
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from samp.data.mcap_io import SceneRecord, write_scene_file
-from samp.data.lifecycle import die_with_parent, reproducible_mkl
+from samp.data.lifecycle import die_with_parent, exit_without_teardown, reproducible_mkl
 from samp.data.merging import EVAL_PREFIX, build_manifest, link_or_copy, merge_lock
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
@@ -86,7 +84,13 @@ def _init_worker(ticks, parent: int | None = None) -> None:
     if parent is not None:
         die_with_parent(parent)
     _TICKS = ticks
+    import torch  # here, not at the top: the generating process itself plans nothing and needs no torch
+
+    from samp.data import mcap_io  # noqa: F401 (with torch, what every scene needs, before the exit handler)
+    from samp.expert import planner  # noqa: F401
+
     torch.set_num_threads(1)
+    exit_without_teardown()  # after the imports above: the last exit handler registered runs first
 
 
 def _loaded(spec_dict: dict):
@@ -101,6 +105,8 @@ def _loaded(spec_dict: dict):
 
 
 def _robot(name: str):
+    import torch
+
     from samp.robot import load_robot
 
     if name not in _ROBOTS:
@@ -154,6 +160,9 @@ def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tupl
 def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
     """Generate one scene file into `out_dir`; returns its sidecar record. Threads are pinned to one so
     results do not depend on the number of workers."""
+    import torch
+
+    from samp.data.mcap_io import SceneRecord, write_scene_file
     from samp.expert.planner import make_planner
     from samp.scene.registry import scene_from_config
 
@@ -205,6 +214,8 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
 
 def link_poses(robot, q: np.ndarray) -> dict[str, np.ndarray]:
     """q (T, n) radians -> link name -> (T, 4, 4) poses in the base frame (float64 forward kinematics)."""
+    import torch
+
     with torch.no_grad():
         fk = robot.fk(torch.as_tensor(np.asarray(q), dtype=robot.dtype))
     names = [*robot.link_meshes, *([] if robot.ee_link in robot.link_meshes else [robot.ee_link])]

@@ -9,11 +9,12 @@ training process is never switched (README, "The same bytes on every CPU")."""
 
 from __future__ import annotations
 
+import atexit
 import os
 import signal
 import sys
 
-__all__ = ["REPRODUCIBLE_MKL", "die_with_parent", "reproducible_mkl"]
+__all__ = ["REPRODUCIBLE_MKL", "die_with_parent", "exit_without_teardown", "reproducible_mkl"]
 
 # Intel MKL's conditional numerical reproducibility: the same results on every x86 CPU.
 REPRODUCIBLE_MKL = {"MKL_CBWR": "COMPATIBLE"}
@@ -37,3 +38,19 @@ def die_with_parent(parent: int) -> None:
     if os.getppid() != parent:  # the parent died before the line above: nobody is left to serve
         os._exit(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def exit_without_teardown() -> None:
+    """In a worker process: end it, when its work is done, without the interpreter's teardown of torch, OMPL
+    and the rest (~1 s per spawned process, which the generating process waits for at shutdown). Runs
+    first among the exit handlers (registered last); the worker has written its scene files and sent its
+    results, and an exit status of a pool worker is not read."""
+    def leave() -> None:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (AttributeError, OSError, ValueError):
+                pass
+        os._exit(0)
+
+    atexit.register(leave)

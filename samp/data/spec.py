@@ -24,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, ValidationError
 
 from samp.expert.config import ExpertConfig, load_expert_config
-from samp.expert.planner import derive_seed
+from samp.expert.seeding import derive_seed
 from samp.paths import conf_dir
 from samp.scene.registry import _load_config as load_generator_config
 

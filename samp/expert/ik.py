@@ -171,8 +171,10 @@ def solve_ik(robot, targets: torch.Tensor, cfg: IKConfig | None = None, *, gener
             # Joints at a limit and pushed beyond it are locked for this step (an active set), so the
             # other joints take up the error instead of the clamp undoing part of every step.
             locked = ((qa <= lo) & (dq < 0)) | ((qa >= hi) & (dq > 0))  # (B, n)
-            if bool(locked.any()):
-                dq = _dls_step(J * ~locked[:, None, :], e, eye)
+            rows = torch.nonzero(locked.any(dim=1))[:, 0]
+            if len(rows):  # solved again without the locked joints: only the rows that have one (each row's
+                # solve is its own, whatever the batch, so the other rows' steps are those just computed)
+                dq[rows] = _dls_step(J[rows] * ~locked[rows, None, :], e[rows], eye)
             scale = (cfg.max_step / dq.abs().amax(dim=1, keepdim=True).clamp_min(1e-12)).clamp(max=1.0)
             q[active] = torch.where(settled[:, None], qa, (qa + dq * scale).clamp(lo, hi))
             active = active[~settled]

@@ -13,6 +13,7 @@ every RNG it uses descends from the attempt's seed and the attempt is reproducib
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from contextlib import contextmanager
@@ -73,12 +74,16 @@ def ompl_log_level(level: str):
         ou.setLogLevel(previous)
 
 
+@functools.lru_cache(maxsize=1024)
 def _coarse_to_fine(steps: int) -> np.ndarray:
     """Indices 1..steps ordered coarse to fine: the end point first, then by halving strides
-    (indices with more trailing zero bits first, as a 1D van der Corput sequence)."""
+    (indices with more trailing zero bits first, as a 1D van der Corput sequence). Read-only: one array per
+    `steps`, shared by every motion of that many steps."""
     k = np.arange(1, steps + 1)
     order = k[np.argsort(-(k & -k), kind="stable")]
-    return np.concatenate([[steps], order[order != steps]])
+    out = np.concatenate([[steps], order[order != steps]])
+    out.setflags(write=False)
+    return out
 
 
 @dataclass

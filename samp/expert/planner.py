@@ -24,14 +24,10 @@ import numpy as np
 
 from samp.expert.config import ExpertConfig, load_expert_config
 from samp.expert.ompl_backend import ANYTIME, plan_once, planner_class
+from samp.expert.seeding import derive_seed
 from samp.expert.trajectory import ee_path_length, first_invalid_segment, joint_path_length, resample, segment_states
 
 __all__ = ["ExpertPlanner", "PlanResult", "derive_seed", "make_planner", "plan_scene"]
-
-
-def derive_seed(seed: int, *keys: int) -> int:
-    """A 32-bit seed determined by `seed` and `keys` (attempt, problem index), well mixed."""
-    return int(np.random.SeedSequence([int(seed) % 2**63, *map(int, keys)]).generate_state(1)[0])
 
 
 @dataclass

@@ -1,6 +1,8 @@
-"""Robot model: description (YAML + URDF), batched FK, link meshes and robot points."""
+"""Robot model: description (YAML + URDF), batched FK, link meshes and robot points. Names are imported on
+first use: reading a robot's config (`available_robots`, `load_robot_config`) needs no torch."""
 
-from samp.robot.config import RobotConfig, available_robots, load_robot_config
-from samp.robot.model import Robot, load_robot
+from samp import lazy_exports
 
-__all__ = ["Robot", "RobotConfig", "available_robots", "load_robot", "load_robot_config"]
+__getattr__, __all__ = lazy_exports(__name__, {
+    "RobotConfig": "samp.robot.config", "available_robots": "samp.robot.config",
+    "load_robot_config": "samp.robot.config", "Robot": "samp.robot.model", "load_robot": "samp.robot.model"})

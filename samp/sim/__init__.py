@@ -8,15 +8,6 @@
 imported on first use, so that `samp.sim.scan` (plain dataclasses) stays light for `samp.perception`.
 """
 
-from importlib import import_module
+from samp import lazy_exports
 
-_EXPORTS = {"LinkBodies": "samp.robot.bodies", "World": "samp.sim.world"}
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'samp.sim' has no attribute {name!r}")
-    value = getattr(import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
+__getattr__, __all__ = lazy_exports(__name__, {"LinkBodies": "samp.robot.bodies", "World": "samp.sim.world"})

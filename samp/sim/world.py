@@ -195,7 +195,7 @@ class World:
         outside the joint limits by more than LIMIT_TOLERANCE (if `joint_limits`).
         """
         q, margin = self._check_q(q), self._check_margin(margin)
-        hit = self.outside_limits(q) if joint_limits else np.zeros(len(q), dtype=bool)
+        hit = self._outside(q) if joint_limits else np.zeros(len(q), dtype=bool)
         T, gaps, touch = self._broadphase(q, self_collision)
         near = gaps <= margin  # (B, Pm, K) candidate part-obstacle pairs
         todo = np.flatnonzero(~hit & (near.any(axis=(1, 2)) | touch.any(axis=1)))
@@ -234,8 +234,10 @@ class World:
 
     def outside_limits(self, q) -> np.ndarray:
         """q (B, n) -> (B,) bool: some joint is outside its limits by more than LIMIT_TOLERANCE."""
-        q = self._check_q(q)
-        return np.any((q < self._lower) | (q > self._upper), axis=1)
+        return self._outside(self._check_q(q))
+
+    def _outside(self, q: np.ndarray) -> np.ndarray:
+        return ((q < self._lower) | (q > self._upper)).any(axis=1)
 
     # ----------------------------------------------------------------- depth cameras
     def depth_images(self, cameras, q=None, seed: int | None = None) -> list:
@@ -272,7 +274,7 @@ class World:
             hint = "; use q[None] for one configuration" if q.ndim == 1 else ""
             raise ValueError(f"q must have shape (B, {n}) for {self.robot.name}'s joints {self.robot.joint_names}, "
                              f"got {tuple(q.shape)}{hint}")
-        if not np.all(np.isfinite(q)):
+        if not np.isfinite(q).all():
             bad = np.flatnonzero(~np.isfinite(q).all(axis=1)).tolist()
             raise ValueError(f"q must be finite, got NaN or inf in configurations {bad}")
         return q

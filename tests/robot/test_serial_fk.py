@@ -71,3 +71,26 @@ def test_points_from_poses_and_their_gradient(count, _isolated_cache):
     (g,) = torch.autograd.grad(points.square().sum(), q)
     (g_oracle,) = torch.autograd.grad(oracle.square().sum(), q)
     assert torch.allclose(g, g_oracle, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["panda", "iiwa", "xarm6"])
+def test_compiled_joint_motions_are_numpys_to_the_bit(name, _isolated_cache):
+    """`SerialFK.numpy` builds the joint motions in one compiled pass: bit for bit numpy's elementwise Rodrigues
+    expression (the IK's solutions, and with them every dataset's bytes, depend on each rounding), and the
+    translation of a prismatic joint (none of the robots has one: joint 2 is taken as prismatic here)."""
+    from samp.robot.serial import _joint_motions
+
+    robot = load_robot(name, dtype=torch.float64)
+    A, D, axes, K, K2, revolute, take = robot.serial_fk.numpy_constants()
+    q = np.random.default_rng(1).uniform(-3.2, 3.2, (2000, robot.dof))
+    c, s = np.cos(q)[..., None, None], np.sin(q)[..., None, None]
+    expected = np.zeros((len(q), robot.dof, 4, 4))
+    expected[..., :3, :3] = np.eye(3) + s * K + (1 - c) * K2
+    expected[..., 3, 3] = 1.0
+    got = _joint_motions(q, np.cos(q), np.sin(q), K, K2, revolute, axes)
+    assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
+    prismatic = revolute.copy()
+    prismatic[2] = False
+    expected[:, 2, :3, :3] = np.eye(3)
+    expected[:, 2, :3, 3] = axes[2] * q[:, 2, None]
+    assert np.array_equal(_joint_motions(q, np.cos(q), np.sin(q), K, K2, prismatic, axes), expected)

@@ -26,8 +26,9 @@ GENERATE = ("import json, sys, time; t0 = time.perf_counter(); from samp.data im
             "spec, workers, root = json.loads(sys.argv[1]), int(sys.argv[2]), sys.argv[3]; "
             "folder = generate(spec, workers=workers, root=root, progress=False); "
             "print(json.dumps({'wall_s': time.perf_counter() - t0, 'folder': str(folder)}))")
+# What a worker loads before its first scene (torch, the scene files' writer, the planner, the robot).
 STARTUP = ("import time; t0 = time.perf_counter(); import torch; import samp.data.generation as g; "
-           "g._robot('{robot}'); print(time.perf_counter() - t0)")
+           "import samp.data.mcap_io, samp.expert.planner; g._robot('{robot}'); print(time.perf_counter() - t0)")
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -98,28 +99,36 @@ def _same_files(a: Path, b: Path) -> bool:
         (a / n).read_bytes() == (b / n).read_bytes() for n in names)
 
 
+PROBLEMS = "problems (goal and start sampling, batched IK, detour choice)"
+SOLVE, SIMPLIFY = "planning: OMPL solve", "planning: simplification and smoothing"
+CHECKS = "planning: straight-line check, resampling, dense check, path lengths"
+GRIDS, WRITE, REST = "anchor grids", "MCAP writing", "rest: scene set-up, scheduling, merge"
+PER_PROBLEM, PER_SCENE = (PROBLEMS, SOLVE, SIMPLIFY, CHECKS, WRITE), (GRIDS, REST)  # how each stage scales
+
+
 def _breakdown(manifest: dict, wall: float, workers: int, startup: float) -> dict:
     """Seconds per stage summed over the scenes (the workers' time, so they add up to about workers x wall)."""
     scenes = manifest["scenes"]
     total = lambda key: float(sum(sum(s.get(key, [])) for s in scenes))  # noqa: E731
     stage = lambda key: float(sum(s.get("stage_time", {}).get(key, 0.0) for s in scenes))  # noqa: E731
     planning, solve, simplify = total("planning_time"), total("solve_time"), total("simplify_time")
-    out = {"problems (goal and start sampling, batched IK, detour choice)": stage("problems"),
-           "planning: OMPL solve": solve, "planning: simplification and smoothing": simplify,
-           "planning: straight-line check, resampling, dense check, path lengths": planning - solve - simplify,
-           "anchor grids": stage("grids"), "MCAP writing": stage("write"),
-           f"process start-up (import, robot), x{workers} workers": startup * workers}
-    out["rest: scene set-up, scheduling, merge"] = max(0.0, wall * workers - sum(out.values()))
+    out = {PROBLEMS: stage("problems"), SOLVE: solve, SIMPLIFY: simplify, CHECKS: planning - solve - simplify,
+           GRIDS: stage("grids"), WRITE: stage("write"), f"process start-up (import, robot), x{workers} workers": startup * workers}
+    out[REST] = max(0.0, wall * workers - sum(out.values()))
     return out
 
 
-def _estimate(spec_name: str, problems_per_s: float, workers: int, cores: int, startup: float) -> float:
-    """Seconds to generate conf/dataset/<spec_name>.yaml on `cores` workers at the measured rate per worker."""
+def _estimate(spec_name: str, breakdown: dict, problems: int, scenes: int, cores: int, startup: float) -> float:
+    """Seconds to generate conf/dataset/<spec_name>.yaml on `cores` workers: the workers' start-up, then the
+    measured worker seconds per problem (sampling, planning, writing) and per scene (grids, set-up, and the
+    small run's scheduling and merge, so on the safe side) scaled to the spec and shared among the cores."""
     from samp.data import load_spec
 
     spec = load_spec(spec_name)
-    problems = sum(j.trajectories + j.eval_problems for j in spec.scene_jobs())
-    return startup + problems / (problems_per_s / workers * min(cores, spec.num_scenes))
+    per_problem = sum(breakdown[k] for k in PER_PROBLEM) / problems
+    per_scene = sum(breakdown[k] for k in PER_SCENE) / scenes
+    count = sum(j.trajectories + j.eval_problems for j in spec.scene_jobs())
+    return startup + (count * per_problem + spec.num_scenes * per_scene) / min(cores, spec.num_scenes)
 
 
 def _generation(args, root: Path) -> tuple[dict, list[list], Path]:
@@ -195,10 +204,10 @@ def _generation(args, root: Path) -> tuple[dict, list[list], Path]:
         metrics[f"breakdown/{stage}"] = seconds
         rows.append([f"  {stage}", f"{seconds:.1f} s ({seconds / max(1e-9, args.workers * wall):.0%})",
                      f"{before[stage]:.1f} s" if stage in before else "", ""])
-    rate = runs.get("detours", cur)["problems_per_s"]  # the rate with the standard spec's detour share
+    measured = runs[main]  # the run with the standard spec's detour share
     for name in ("standard", "paper"):
         for cores in (2, 8, 32):
-            eta = _estimate(name, rate, args.workers, cores, cur["startup_s"])
+            eta = _estimate(name, breakdown, measured["problems"], args.scenes, cores, cur["startup_s"])
             metrics[f"estimate/{name}_{cores}_cores_s"] = eta
             rows.append([f"expected time, {name} spec, {cores} cores", f"{eta / 60:.1f} min", "", ""])
     return metrics, rows, Path(cur["folder"])

@@ -31,6 +31,7 @@ import torch
 import trimesh
 
 from samp.scene.model import Box, Cylinder, MeshObstacle, Obstacle, Scene, Sphere
+from samp.sim.broadphase import part_gaps, quaternions, serial_link_poses
 from samp.scene.sdf import obstacle_parts
 from samp.robot.bodies import MESH_MARGIN, LinkBodies
 from samp.console import import_pybullet
@@ -291,8 +292,6 @@ class World:
         the candidate self pairs (B, S) (all False unless `self_collision`): compiled for a serial arm
         (`samp.sim.broadphase`), else in numpy; `compiled` forces one (the tests compare them)."""
         if self.compiled if compiled is None else compiled:
-            from samp.sim.broadphase import part_gaps, serial_link_poses
-
             T = serial_link_poses(q, *self._fk_constants)
             return (T, *part_gaps(T, *self._part_arrays, bool(self_collision), SELF_SLACK))
         T = self.links.link_poses(q)
@@ -304,8 +303,6 @@ class World:
         """`LinkBodies.pose_arrays`, the quaternions compiled when the broadphase is."""
         if not self.compiled:
             return self.links.pose_arrays(T)
-        from samp.sim.broadphase import quaternions
-
         return T[..., :3, 3], quaternions(np.ascontiguousarray(T))
 
     def _part_boxes(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

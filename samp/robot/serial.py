@@ -15,7 +15,8 @@ then uses its general FK.
 
 from __future__ import annotations
 
-import numba
+import functools
+
 import numpy as np
 import torch
 
@@ -38,9 +39,20 @@ def _motion(joint, value: float) -> np.ndarray:
     return T
 
 
-@numba.njit(cache=True, nogil=True)
-def _joint_motions(q: np.ndarray, c: np.ndarray, s: np.ndarray, K: np.ndarray, K2: np.ndarray, revolute: np.ndarray,
-                   axes: np.ndarray) -> np.ndarray:
+def _joint_motions(q: np.ndarray, *rest) -> np.ndarray:
+    """`_joint_motions_py` compiled (numba, cached on disk) on first use: importing the robot costs no numba."""
+    return _compiled_joint_motions()(q, *rest)
+
+
+@functools.cache
+def _compiled_joint_motions():
+    import numba
+
+    return numba.njit(cache=True, nogil=True)(_joint_motions_py)
+
+
+def _joint_motions_py(q: np.ndarray, c: np.ndarray, s: np.ndarray, K: np.ndarray, K2: np.ndarray,
+                      revolute: np.ndarray, axes: np.ndarray) -> np.ndarray:
     """(B, n, 4, 4) each arm joint's motion: Rodrigues' I + sin K + (1 - cos) K^2 for a revolute joint (c, s:
     (B, n) numpy's cos and sin of q), I with the translation axis * q for a prismatic one. The numbers that
     numpy's elementwise expression gave, to the bit (the same operations in the same order, no fused

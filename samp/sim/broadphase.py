@@ -3,18 +3,20 @@ collision parts' world boxes, their gaps to the obstacles' boxes, and the self p
 call per query.
 
 The expert asks `World.in_collision` about a few configurations at a time (a motion's first chunk of 8
-states, one sampled state) some 7000 times per scene. In numpy the broadphase is about 15 array operations,
-~0.6 ms a call whatever the batch, and it was two thirds of generation's time; the same arithmetic in one
-compiled loop takes tens of microseconds. `World` keeps its numpy broadphase as the reference (and for arms
-whose FK is not serial); the tests compare the two.
+states, one sampled state) about 250 times per problem. In numpy the broadphase is about 15 array
+operations, ~0.6 ms a call whatever the batch, and it was two thirds of generation's time; the same
+arithmetic in one compiled loop takes tens of microseconds. `World` keeps its numpy broadphase as the
+reference (and for arms whose FK is not serial); the tests compare the two.
 
 Same inputs, same arithmetic as the numpy path, but not the same rounding: numpy multiplies the 4 x 4 and
-3 x V matrices through BLAS, whose kernels (and their fused multiply-adds) depend on the CPU. A query's
-answer could differ only for a box gap within ~1e-16 m of the margin, and then only if the narrowphase
-distance lies in that same ulp, which the datasets' pinned bytes (`tests/data/test_generation.py`) would show.
+3 x V matrices through BLAS, whose kernels (and their fused multiply-adds) depend on the CPU. Poses a
+rounding error apart move pybullet's distances by up to ~1e-7 m (its GJK's sensitivity), so an answer could
+differ only for a distance that close to the margin: the pinned dataset bytes
+(`tests/data/test_data_generation.py`) and a whole `standard` dataset (every file equal but for one problem
+that timed out) showed none.
 
 Compiled functions are cached on disk beside this file (numba's `cache=True`; elsewhere when that folder is
-read-only), so a process pays the ~2 s compilation only once per machine and numba version.
+read-only), so a process pays the ~8 s compilation only once per machine and numba version.
 """
 
 from __future__ import annotations

@@ -95,10 +95,11 @@ def _frame_gap(Ta: np.ndarray, Tb: np.ndarray, vertices: np.ndarray, count: int,
     """Box gap between a part (vertices (3, V), `count` of them real) posed at Ta (4, 4) and another part's
     box (local_lo, local_hi) in its own link frame, posed at Tb: the former's box taken in that frame."""
     M, shift = np.empty((3, 3)), np.empty(3)
+    d0, d1, d2 = Ta[0, 3] - Tb[0, 3], Ta[1, 3] - Tb[1, 3], Ta[2, 3] - Tb[2, 3]  # t_a - t_b
     for r in range(3):
         for c in range(3):
             M[r, c] = Tb[0, r] * Ta[0, c] + Tb[1, r] * Ta[1, c] + Tb[2, r] * Ta[2, c]  # R_b^T R_a
-        shift[r] = Tb[0, r] * (Ta[0, 3] - Tb[0, 3]) + Tb[1, r] * (Ta[1, 3] - Tb[1, 3]) + Tb[2, r] * (Ta[2, 3] - Tb[2, 3])
+        shift[r] = Tb[0, r] * d0 + Tb[1, r] * d1 + Tb[2, r] * d2  # R_b^T (t_a - t_b)
     lo, hi = np.empty(3), np.empty(3)
     _box_of(M, shift, vertices, count, lo, hi)
     return _gap(lo, hi, local_lo, local_hi)

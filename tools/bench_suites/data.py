@@ -113,7 +113,8 @@ def _breakdown(manifest: dict, wall: float, workers: int, startup: float) -> dic
     stage = lambda key: float(sum(s.get("stage_time", {}).get(key, 0.0) for s in scenes))  # noqa: E731
     planning, solve, simplify = total("planning_time"), total("solve_time"), total("simplify_time")
     out = {PROBLEMS: stage("problems"), SOLVE: solve, SIMPLIFY: simplify, CHECKS: planning - solve - simplify,
-           GRIDS: stage("grids"), WRITE: stage("write"), f"process start-up (import, robot), x{workers} workers": startup * workers}
+           GRIDS: stage("grids"), WRITE: stage("write"),
+           f"process start-up (import, robot), x{workers} workers": startup * workers}
     out[REST] = max(0.0, wall * workers - sum(out.values()))
     return out
 

@@ -111,7 +111,7 @@ def _ls(args: list[str]) -> None:
         print(f"no datasets under {root}; generate one with `python -m samp.data generate +dataset=quickstart`")
         return
     width = max(32, *(len(d["name"]) + 1 + len(d["id"]) for d in rows))
-    print(f"{'name@id':<{width}} {'created':<26} {'scenes':>6} {'trajs':>7} {'eval':>6} {'MB':>8}")
+    print(f"{'name@id':<{width}} {'created':<32} {'scenes':>6} {'trajs':>7} {'eval':>6} {'MB':>8}")
     for d in rows:
         if d.get("damaged"):
             print(f"{d['name'] + '@' + d['id']:<{width}} DAMAGED: {d['damaged']}")
@@ -119,7 +119,7 @@ def _ls(args: list[str]) -> None:
         # Every file below the dataset folder: robot SDF sample sets keep theirs in sub-folders.
         mb = sum(f.stat().st_size for f in Path(d["path"]).rglob("*") if f.is_file()) / 1e6
         counts = d.get("counts", {})
-        print(f"{d['name'] + '@' + d['id']:<{width}} {d['created']:<26} {counts.get('scenes', '-'):>6} "
+        print(f"{d['name'] + '@' + d['id']:<{width}} {d['created']:<32} {counts.get('scenes', '-'):>6} "
               f"{counts.get('trajectories', '-'):>7} {counts.get('eval_problems', '-'):>6} {mb:8.1f}")
 
 

@@ -91,7 +91,9 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
         raise DatasetError(f"{tmp} holds no data files; nothing to finalize")
     ident = content_id({rel: f["sha256"] for rel, f in files.items()})
     full = {"format_version": FORMAT_VERSION, "name": name, "id": ident,
-            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), **manifest, "files": files}
+            # to the microsecond: `name` means the newest, and two datasets of a name can be finalized within
+            # a second (a small spec regenerated); a stamp to the second then tied and the older could win
+            "created": datetime.now(timezone.utc).isoformat(timespec="microseconds"), **manifest, "files": files}
     full[MANIFEST_HASH] = manifest_hash(full)
     (tmp / MANIFEST).write_text(json.dumps(full, indent=2, sort_keys=True))
     from samp.data.card import CARD, dataset_card

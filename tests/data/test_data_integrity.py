@@ -153,3 +153,21 @@ def test_dataset_names_cannot_leave_the_root(small, tmp_path, name):
 def test_read_manifest_of_intact_dataset_has_its_hash(small):
     m = read_manifest(small)
     assert m["format_version"] == 2 and m["manifest_sha256"] == manifest_hash(m)
+def test_the_newest_of_two_datasets_finalized_within_a_second_is_the_later(tmp_path):
+    """`name` resolves to the newest dataset of that name, also when two were finalized within one second
+    (a small spec edited and generated again at once): `created` is stamped to the microsecond. The later
+    one is given the larger id, so a tie in the stamp would pick the earlier (the first in id order)."""
+    import hashlib
+
+    from samp.data.registry import content_id, finalize_dataset, resolve_ref
+
+    ident = lambda content: content_id({"scene_0000.mcap": hashlib.sha256(content).hexdigest()})  # noqa: E731
+    contents = sorted((b"first", b"second"), key=ident)
+    made = []
+    for i, content in enumerate(contents):
+        work = tmp_path / f"work_{i}"
+        work.mkdir()
+        (work / "scene_0000.mcap").write_bytes(content)
+        made.append(finalize_dataset(work, "twice", {}, root=tmp_path / "root"))
+    assert made[0].name < made[1].name
+    assert resolve_ref("twice", tmp_path / "root") == made[1]

@@ -24,7 +24,6 @@ from __future__ import annotations
 import copy
 import json
 import os
-import queue
 import shutil
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -34,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from samp.data.lifecycle import die_with_parent, exit_without_teardown, reproducible_mkl
+from samp.data.lifecycle import die_with_parent, drain, end_workers, exit_without_teardown, reproducible_mkl
 from samp.data.merging import EVAL_PREFIX, build_manifest, link_or_copy, merge_lock
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
@@ -317,35 +316,17 @@ def _run_pool(spec_dict: dict, todo: list[SceneJob], work: Path, workers: int, b
         pending = {pool.submit(run_scene, spec_dict, job, str(work)) for job in todo}
         while pending:
             done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            _drain(ticks, bar)
+            drain(ticks, bar)
             for future in done:
                 future.result()  # a failed scene stops the run; finished scenes stay on disk
-        _drain(ticks, bar)
+        drain(ticks, bar)
     except BaseException:
-        _end_workers(pool)
+        end_workers(pool)
         raise
     else:
         pool.shutdown(wait=True)
     finally:
         manager.shutdown()
-
-
-def _end_workers(pool: ProcessPoolExecutor) -> None:
-    """Cancel what is queued and end the running workers now (a scene half planned is lost, as after a kill)."""
-    processes = list(getattr(pool, "_processes", {}).values())  # the executor keeps its workers here
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in processes:
-        p.kill()
-    for p in processes:
-        p.join(timeout=30)
-
-
-def _drain(ticks, bar) -> None:
-    while True:
-        try:
-            bar.update(ticks.get_nowait())
-        except queue.Empty:
-            return
 
 
 # ------------------------------------------------------------------------------------------ merge

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import atexit
 import os
+import queue
 import signal
 import sys
 
-__all__ = ["REPRODUCIBLE_MKL", "die_with_parent", "exit_without_teardown", "reproducible_mkl"]
+__all__ = ["REPRODUCIBLE_MKL", "die_with_parent", "drain", "end_workers", "exit_without_teardown", "reproducible_mkl"]
 
 # Intel MKL's conditional numerical reproducibility: the same results on every x86 CPU.
 REPRODUCIBLE_MKL = {"MKL_CBWR": "COMPATIBLE"}
@@ -54,3 +55,22 @@ def exit_without_teardown() -> None:
         os._exit(0)
 
     atexit.register(leave)
+
+
+def end_workers(pool) -> None:
+    """Cancel what is queued and end the running workers now (a scene half planned is lost, as after a kill)."""
+    processes = list(getattr(pool, "_processes", {}).values())  # the executor keeps its workers here
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        p.kill()
+    for p in processes:
+        p.join(timeout=30)
+
+
+def drain(ticks, bar) -> None:
+    """Move the finished-problem ticks the workers queued onto the progress bar."""
+    while True:
+        try:
+            bar.update(ticks.get_nowait())
+        except queue.Empty:
+            return

@@ -24,15 +24,13 @@ probes agree with the exact distance to within 1e-5 m (box, mesh) and 1.1e-5 m (
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 import trimesh
 
-from samp.scene.model import Box, Cylinder, MeshObstacle, Obstacle, Scene, Sphere
+from samp.scene.model import Scene
 from samp.sim.broadphase import part_gaps, quaternions, serial_link_poses
-from samp.scene.sdf import obstacle_parts
+from samp.sim.obstacles import Obstacle, make_obstacle
 from samp.robot.bodies import MESH_MARGIN, LinkBodies
 from samp.console import import_pybullet
 
@@ -48,56 +46,6 @@ SHELL = 0.02  # metres: first search radius beyond the box gap for a concave mes
 # "no penetration" and skipping the call changes no outcome.
 SELF_SLACK = 1e-3
 GROUPED_FROM = 12  # configurations per query from which part boxes are computed per group of equal-size parts
-
-
-@dataclass(frozen=True)
-class _Obstacle:
-    """One static pybullet body of an obstacle and what its distance needs to become exact."""
-
-    name: str  # the scene obstacle's name (a mesh obstacle of several bodies has one entry per body)
-    body: int
-    inflation: float  # pybullet's margin around this shape, added back to every distance
-    mesh: trimesh.Trimesh | None  # a closed non-convex body, which pybullet sees only as its surface
-    pose: np.ndarray  # (4, 4) obstacle frame -> base frame
-
-
-def _mesh_shape(body: trimesh.Trimesh, convex: bool, client: int) -> int:
-    """A convex hull (vertices only), or a static concave triangle mesh."""
-    if convex:
-        return pb.createCollisionShape(pb.GEOM_MESH, vertices=body.vertices.tolist(), physicsClientId=client)
-    return pb.createCollisionShape(pb.GEOM_MESH, vertices=body.vertices.tolist(), indices=body.faces.ravel().tolist(),
-                                   flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=client)
-
-
-def _obstacle_shapes(o: Obstacle, client: int) -> list[tuple[int, float, trimesh.Trimesh | None]]:
-    """pybullet collision shapes of one obstacle: (shape id, inflation, closed concave body or None) each."""
-    kw = dict(physicsClientId=client)
-    if isinstance(o, Box):  # grown by the margin: see the module docstring
-        half = np.asarray(o.size) / 2 + MESH_MARGIN
-        return [(pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half.tolist(), **kw), MESH_MARGIN, None)]
-    if isinstance(o, Cylinder):  # along local z, as ours; grown by the margin
-        return [(pb.createCollisionShape(pb.GEOM_CYLINDER, radius=o.radius + MESH_MARGIN,
-                                         height=o.height + 2 * MESH_MARGIN, **kw), MESH_MARGIN, None)]
-    if isinstance(o, Sphere):  # pybullet's sphere is all margin: exact
-        return [(pb.createCollisionShape(pb.GEOM_SPHERE, radius=o.radius, **kw), 0.0, None)]
-    if isinstance(o, MeshObstacle):  # one body per closed part, as the scene SDF sees it
-        shapes = []
-        for part in obstacle_parts(o):
-            convex = o.convex_hull or part.is_convex
-            shapes.append((_mesh_shape(part, convex, client), MESH_MARGIN, None if convex else part))
-        return shapes
-    raise TypeError(f"unknown obstacle type {type(o).__name__}; expected Box, Cylinder, Sphere or MeshObstacle")
-
-
-def _make_obstacle(o: Obstacle, client: int) -> list[_Obstacle]:
-    bodies = []
-    for shape, inflation, mesh in _obstacle_shapes(o, client):
-        if shape < 0:
-            raise RuntimeError(f"pybullet could not build a collision shape for obstacle {o.name!r} ({o.kind})")
-        body = pb.createMultiBody(0, shape, basePosition=o.pose.position, baseOrientation=o.pose.quaternion,
-                                  physicsClientId=client)
-        bodies.append(_Obstacle(o.name, body, inflation, mesh, o.pose.matrix()))
-    return bodies
 
 
 def _box_gap(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray) -> np.ndarray:
@@ -124,7 +72,7 @@ class World:
         self.client: int | None = pb.connect(pb.DIRECT)
         try:
             self.links = LinkBodies(robot, client=self.client)
-            self.obstacles = [body for o in scene.all_obstacles for body in _make_obstacle(o, self.client)]
+            self.obstacles = [body for o in scene.all_obstacles for body in make_obstacle(o, self.client)]
         except BaseException:
             self.close()
             raise
@@ -412,7 +360,7 @@ class World:
                 return -float(trimesh.proximity.signed_distance(o.mesh, local).max())
         return d if d <= limit else np.inf
 
-    def _part_vertices_in(self, T: np.ndarray, part: int, o: _Obstacle) -> np.ndarray:
+    def _part_vertices_in(self, T: np.ndarray, part: int, o: Obstacle) -> np.ndarray:
         """(V, 3) vertices of part `part`, posed by T (L, 4, 4), in the frame of obstacle o."""
         link_pose = T[self.links.part_links[part]]
         world = self._parts[part].vertices @ link_pose[:3, :3].T + link_pose[:3, 3]  # (V, 3) base frame

@@ -92,6 +92,8 @@ def _planner(cfg, run, manifest: dict):
         options = {} if cfg.robot_sdf_tables is None else {"robot_sdf_tables": cfg.robot_sdf_tables}
         if cfg.robot_sdf_pairs is not None:
             options["robot_sdf_pairs"] = cfg.robot_sdf_pairs
+        if cfg.compiled is not None:
+            options["compiled"] = cfg.compiled
         if cfg.trust_checkpoint:
             options["trust_checkpoint"] = True
         if cfg.check is not None:

@@ -57,6 +57,7 @@ class EvalConfig:
     device: str = "auto"  # where the policy runs: auto (CUDA when there is a GPU) | cpu | cuda[:N]
     robot_sdf_tables: int | None = None  # samp policies: robot SDF tables (0: exact; null: the policy's own)
     robot_sdf_pairs: str | None = None  # samp policies: all | near (robot SDF pairs of a step; null: the policy's own)
+    compiled: bool | None = None  # samp policies: a step's inputs in one compiled call on a CPU (null: where allowed)
     check: int | None = None  # samp policies: samp+check with this many candidate rollouts per problem (null: plain)
     grid_source: str = "exact"  # exact (the dataset's grids) | reconstructed (from simulated depth cameras)
     camera: str = "default"  # grid_source=reconstructed: camera set, conf/camera/NAME.yaml or a YAML path
@@ -149,6 +150,7 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
     _require(cfg.robot_sdf_tables is None or cfg.robot_sdf_tables == 0 or cfg.robot_sdf_tables >= 2,
              "robot_sdf_tables", "null, 0 (exact) or an integer >= 2", cfg.robot_sdf_tables)
     _require(cfg.robot_sdf_pairs in (None, "all", "near"), "robot_sdf_pairs", "null, all or near", cfg.robot_sdf_pairs)
+    _require(cfg.compiled in (None, True, False), "compiled", "null, true or false", cfg.compiled)
     _require(cfg.check is None or cfg.check >= 1, "check", "null or a number of candidates >= 1", cfg.check)
     _require(cfg.grid_source in ("exact", "reconstructed"), "grid_source", "exact | reconstructed", cfg.grid_source)
     _require(cfg.unknown in ("occupied", "free"), "unknown", "occupied | free", cfg.unknown)

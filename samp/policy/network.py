@@ -284,15 +284,26 @@ class SAMPNet(nn.Module):
         if M != self.cfg.num_points or u_t.shape[-1] != self.cfg.dof:
             raise ValueError(f"SAMPNet was built for {self.cfg.num_points} points and {self.cfg.dof} joints; got "
                              f"points {tuple(points.shape)} and q {tuple(u_t.shape)}")
-        parts = [self.config_mlp(goal_features(u_t, u_g, self.cfg.goal_features))]
+        env_in = None
         if self.cfg.env_encoder:
             if n_e is None and self.env.registration == "centres":
                 raise ValueError("SAMPNet.forward needs n_e (the grids' anchors per axis) to place the feature cells")
             box = self.env.feature_bounds(bounds, n_e, features.shape[-1])
             env = sample_by_scene(features, scene_index, points, box).transpose(1, 2)  # (B, M, C)
-            parts.append(self.env_mlp(torch.cat([env, robot_sdf[..., None]], dim=-1).reshape(B, -1)))
+            env_in = torch.cat([env, robot_sdf[..., None]], dim=-1).reshape(B, -1)
+        point_in = torch.cat([points, robot_sdf[..., None]], dim=-1) if self.cfg.point_encoder else None
+        return self.head(u_t, goal_features(u_t, u_g, self.cfg.goal_features), env_in, point_in)
+
+    def head(self, u_t: torch.Tensor, config_in: torch.Tensor, env_in: torch.Tensor | None,
+             point_in: torch.Tensor | None) -> torch.Tensor:
+        """The learned layers of a step, from their inputs: u_t (B, n); config_in (B, 2n or 4n + 1) from
+        `goal_features`; env_in (B, M (C + 1)) each point's scene features and robot SDF, flattened; point_in
+        (B, M, 4) the points and their robot SDF. -> (B, n) the next configuration, normalised and clamped."""
+        parts = [self.config_mlp(config_in)]
+        if self.cfg.env_encoder:
+            parts.append(self.env_mlp(env_in))
         if self.cfg.point_encoder:
-            parts.append(max_over_points(self.point_mlp, torch.cat([points, robot_sdf[..., None]], dim=-1)))
+            parts.append(max_over_points(self.point_mlp, point_in))
         u = u_t + self.fusion(torch.cat(parts[::-1], dim=-1))
         # Clamped to the limits in value; in the backward pass the clamp lets gradients through, so a
         # prediction beyond a limit is pulled back instead of stalling on a zero gradient.

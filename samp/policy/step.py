@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 
+from samp.policy.network import denormalize
 from samp.policy.plan import Plannable
 
 __all__ = ["SAMPStepPolicy"]
@@ -14,23 +15,43 @@ class SAMPStepPolicy(Plannable):
     `plan(scene, q_start, q_goal)` does both for one problem (`samp.policy.plan`).
 
     The grids must be at the policy's n_e and share the workspace bounds the policy was trained with.
+
+    `compiled`: on a CPU, compute what the network reads (robot points, robot SDF, scene features, normalised
+    configurations) in one compiled call (`samp.policy.compiled`), where the system allows it (a serial arm,
+    robot_sdf_pairs=near); None (the default) does so wherever it is allowed, False keeps the torch path, which
+    the two agree with to float32 rounding.
     """
 
-    def __init__(self, system, name: str = "samp"):
+    def __init__(self, system, name: str = "samp", compiled: bool | None = None):
+        from samp.policy.compiled import StepInputs, compiled_step_available
+
         system.fitted()
         self.system, self.robot, self.name, self.n_e = system, system.robot, name, system.n_e
         self._features = None
+        if compiled and not compiled_step_available(system):
+            raise ValueError("compiled=True needs a CPU policy of a serial arm with robot_sdf_pairs=near; "
+                             f"this one is on {system.device} with robot_sdf_pairs={system.robot_sdf_pairs}")
         # What depends only on the robot and the robot SDF's weights is built now, outside any timed step.
         system.robot_sdf.self_distances(system.robot_sdf_tables)
+        use = compiled_step_available(system) if compiled is None else compiled
+        self._inputs = StepInputs(system) if use else None
 
     def reset(self, env) -> None:
         self.system.check_env(env)
         with torch.no_grad():
             self._features = self.system.encode(env.grids.to(self.system.device, torch.float32))
+        if self._inputs is not None:
+            self._inputs.set_features(self._features)
 
     def step(self, q: torch.Tensor, q_goal: torch.Tensor, env) -> torch.Tensor:
         if self._features is None:
             self.reset(env)
         with torch.inference_mode():
-            return self.system.predict(q, q_goal, self._features, env.scene_index, self.system.bounds,
-                                       near=self.system.robot_sdf_pairs == "near")
+            if self._inputs is None:
+                return self.system.predict(q, q_goal, self._features, env.scene_index, self.system.bounds,
+                                           near=self.system.robot_sdf_pairs == "near")
+            u_t, config_in, env_in, point_in = self._inputs(q, q_goal, env.scene_index)
+            net = self.system.net
+            u = net.head(u_t, config_in, env_in if net.cfg.env_encoder else None,
+                         point_in if net.cfg.point_encoder else None)
+            return denormalize(u, self.system.limits).to(q.device)

@@ -146,16 +146,17 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         return denormalize(u, self.limits)
 
     def planner(self, robot_sdf_tables: int | None = None, check: int | dict | None = None,
-                robot_sdf_pairs: str | None = None, **options):
+                robot_sdf_pairs: str | None = None, compiled: bool | None = None, **options):
         """The current weights as a `StepPolicy` (`SAMPStepPolicy`), for rollouts and `EvalCallback`.
         `robot_sdf_tables` replaces the system's own (0: the exact robot SDF at the robot points);
-        `robot_sdf_pairs` likewise ("all" | "near", see the class).
+        `robot_sdf_pairs` likewise ("all" | "near", see the class). `compiled`: the step's inputs in one
+        compiled call on a CPU (`SAMPStepPolicy`; None: wherever the system allows it, False: the torch path).
         `check`: a number of candidates, or `CheckConfig` fields, gives the checked planner instead
         (`samp.policy.checked.CheckedPolicy`, "samp+check", a `TrajectoryPlanner`)."""
         from samp.policy.step import SAMPStepPolicy
 
         if options:
-            raise ValueError(f"the samp policy takes only robot_sdf_tables, robot_sdf_pairs and check as planner "
+            raise ValueError(f"the samp policy takes only robot_sdf_tables, robot_sdf_pairs, compiled and check as planner "
                              f"options, got {sorted(options)}")
         if robot_sdf_tables is not None:
             if not isinstance(robot_sdf_tables, int) or robot_sdf_tables < 0 or robot_sdf_tables == 1:
@@ -164,10 +165,10 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         if robot_sdf_pairs is not None or robot_sdf_tables is not None:  # new tables alone: their default pairs
             self._set_pairs(robot_sdf_pairs)
         if check is None:
-            return SAMPStepPolicy(self)
+            return SAMPStepPolicy(self, compiled=compiled)
         from samp.policy.checked import CheckConfig, CheckedPolicy
 
-        return CheckedPolicy(SAMPStepPolicy(self), CheckConfig(**check) if isinstance(check, dict) else
+        return CheckedPolicy(SAMPStepPolicy(self, compiled=compiled), CheckConfig(**check) if isinstance(check, dict) else
                              CheckConfig(candidates=check))
 
     # ------------------------------------------------------------------ training

@@ -39,21 +39,24 @@ def _env(dm, rows: int = 5) -> tuple[EnvBatch, dict]:
 
 
 def test_load_policy_steps_as_the_trained_network_predicts(trained):
-    """`load_policy(checkpoint).step` is the fitted network's `predict` on the same inputs, bit for bit.
-    Catches a step that reads other grids, bounds or scenes, or a checkpoint that loses weights."""
+    """`load_policy(checkpoint, compiled=False).step` is the fitted network's `predict` on the same inputs, bit
+    for bit, and the default (compiled inputs, `samp.policy.compiled`) agrees to float32 rounding. Catches a step
+    that reads other grids, bounds or scenes, or a checkpoint that loses weights."""
     from samp.policy import load_policy
     from samp.policy.step import SAMPStepPolicy
 
     dm, system, path = trained
-    policy = load_policy(path)
+    policy, compiled = load_policy(path, compiled=False), load_policy(path)
     assert isinstance(policy, SAMPStepPolicy) and policy.n_e == 16
     env, b = _env(dm)
     policy.reset(env)
+    compiled.reset(env)
     got = policy.step(b["q"], b["q_goal"], env)
     with torch.no_grad():
         want = system.predict(b["q"], b["q_goal"], system.encode(dm.grids), b["scene"], dm.bounds,
                               near=policy.system.robot_sdf_pairs == "near")
     assert torch.equal(got, want), f"max difference {float((got - want).abs().max())}"
+    assert torch.allclose(compiled.step(b["q"], b["q_goal"], env), want, atol=1e-5)
     assert not torch.allclose(got, b["q"]), "a step must move the arm"
     lim = system.robot.joint_limits.to(got)
     assert ((got >= lim[:, 0] - 1e-6) & (got <= lim[:, 1] + 1e-6)).all(), "steps stay within the joint limits"

@@ -135,4 +135,16 @@ def run(args) -> tuple[dict, list[list]]:
 
     rows = list(range(0, len(problems), max(1, len(problems) // args.expert_problems)))[:args.expert_problems]
     subset = [problems[i] for i in rows]  # spread over the scenes
-    return _report(args, label, len(problems), t, batched, single, full, _expert_times(exact, subset), rows)
+    metrics, table = _report(args, label, len(problems), t, batched, single, full, _expert_times(exact, subset), rows)
+    if getattr(policy, "_inputs", None) is not None:  # a SAMP policy whose default step is compiled: the torch path too
+        from samp.eval import load_planner
+
+        plain = load_planner(args.policy_run, compiled=False)
+        plain.system.to(device)
+        times = [r.solution_time for r in rollout(plain, subset, single_cfg, source)]
+        mine = metrics["solution/policy_single_s"]
+        metrics["solution/policy_torch_path_single_s"] = statistics.mean(times)
+        table.insert(5, [f"  the same {len(rows)} problems on the torch path (compiled=False)",
+                         f"{statistics.mean(times) * 1e3:.1f} ms policy (B=1)", "",
+                         f"{statistics.mean(times) / mine:.2f}x"])
+    return metrics, table

@@ -50,8 +50,11 @@ def _median_ms(fn, repeats: int = 50) -> float:
 
 
 def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
-    """Milliseconds of each stage of one step at B = len(q), and of the whole `SAMPStepPolicy` step."""
-    from samp.policy.network import goal_features, normalize, sample_by_scene
+    """Milliseconds of each stage of one step at B = len(q) on the torch path ("other": the rest of its step
+    call), of that whole step ("step, torch path"), and of the default `SAMPStepPolicy` step ("step"): on a CPU
+    with near pairs, the compiled inputs ("compiled inputs") and the learned layers after them."""
+    from samp.policy.compiled import compiled_step_available
+    from samp.policy.network import goal_features, max_over_points, normalize, sample_by_scene
     from samp.policy.step import SAMPStepPolicy
 
     robot, rsdf, net, tables = system.robot, system.robot_sdf, system.net, system.robot_sdf_tables
@@ -70,7 +73,7 @@ def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
             "robot points": _median_ms(lambda: robot.transform_points(q, poses)),
             "robot SDF": _median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables, needed)),
             "feature sampling": _median_ms(lambda: sample_by_scene(features, scene, points, box)),
-            "PointNet": _median_ms(lambda: net.point_mlp(torch.cat([points, d[..., None]], dim=-1)).amax(dim=1)),
+            "PointNet": _median_ms(lambda: max_over_points(net.point_mlp, torch.cat([points, d[..., None]], dim=-1))),
             "MLPs": _median_ms(lambda: (net.env_mlp(torch.cat([env, d[..., None]], dim=-1).reshape(n, -1)),
                                         net.config_mlp(goal_features(u_t, u_g, net.cfg.goal_features)),
                                         net.fusion(q.new_zeros(n, width)))),
@@ -78,12 +81,21 @@ def _stages(system, q, q_goal, features, scene, bounds) -> dict[str, float]:
         every = (_median_ms(lambda: rsdf.at_robot_points(q, points, poses, tables)) if needed is False
                  else parts["robot SDF"])
         exact = _median_ms(lambda: rsdf.at_robot_points(q, points, poses, 0)) if tables else parts["robot SDF"]
-    policy = SAMPStepPolicy(system)
+    plain = SAMPStepPolicy(system, compiled=False)
     env_batch = _env(system, features.shape[0], scene)
-    policy.reset(env_batch)
-    step = _median_ms(lambda: policy.step(q, q_goal, env_batch))
-    return {**parts, "other": step - sum(parts.values()), "step": step, "robot SDF all pairs": every,
-            "robot SDF exact": exact}
+    plain.reset(env_batch)
+    torch_step = _median_ms(lambda: plain.step(q, q_goal, env_batch))
+    out = {**parts, "other": torch_step - sum(parts.values()), "step, torch path": torch_step,
+           "robot SDF all pairs": every, "robot SDF exact": exact, "step": torch_step}
+    if compiled_step_available(system):  # the default step on a CPU: the inputs in one compiled call, then the head
+        policy = SAMPStepPolicy(system)
+        policy.reset(env_batch)
+        inputs = policy._inputs(q, q_goal, scene)
+        with torch.inference_mode():
+            out["compiled inputs"] = _median_ms(lambda: policy._inputs(q, q_goal, scene))
+            out["learned layers (SAMPNet.head)"] = _median_ms(lambda: net.head(*inputs))
+        out["step"] = _median_ms(lambda: policy.step(q, q_goal, env_batch))
+    return out
 
 
 def _env(system, scenes: int, scene_index: torch.Tensor):
@@ -279,9 +291,11 @@ def run(args) -> tuple[dict, list[list]]:
         stages = _stages(system, q, q_goal, features, zero, system.bounds)
         generic = _generic_step_ms(system, q, q_goal, features, zero, system.bounds)
         many = torch.arange(B_BATCHED, device=device) % len(scenes)
-        batched = _stages(system, qs[:B_BATCHED], qs[1:], feats_all, many, system.bounds)["step"]
+        batch_stages = _stages(system, qs[:B_BATCHED], qs[1:], feats_all, many, system.bounds)
+        batched, batched_torch = batch_stages["step"], batch_stages["step, torch path"]
         metrics.update({f"{key}/step_b1_ms": stages["step"], f"{key}/generic_step_b1_ms": generic,
                         f"{key}/step_speedup": generic / stages["step"], f"{key}/step_b{B_BATCHED}_ms": batched,
+                        f"{key}/step_b{B_BATCHED}_torch_path_ms": batched_torch,
                         f"{key}/batched_steps_per_s": B_BATCHED * 1e3 / batched,
                         f"{key}/robot_sdf_tables": system.robot_sdf_tables,
                         f"{key}/robot_sdf_pairs": system.robot_sdf_pairs,
@@ -289,12 +303,16 @@ def run(args) -> tuple[dict, list[list]]:
         rows.append([f"{label}, n_e={n_e}: step B=1", f"{stages['step']:.2f} ms", f"{generic:.2f} ms (generic)",
                      f"{generic / stages['step']:.1f}x"])
         for k, v in stages.items():
-            if k != "step":
+            if k == "step, torch path":
+                rows.append([f"  {k} (compiled=False; the stages above are its)", f"{v:.3f} ms", "",
+                             f"{v / stages['step']:.2f}x"])
+            elif k != "step":
                 rows.append([f"  {k}" + (f" (tables K={system.robot_sdf_tables}, {system.robot_sdf_pairs} pairs)"
                                          if k == "robot SDF" else ""),
                              f"{v:.3f} ms", "", ""])
         rows.append([f"  step B={B_BATCHED} (one call, {len(scenes)} scenes)", f"{batched:.1f} ms",
-                     f"{B_BATCHED * 1e3 / batched:.0f} problem-steps/s", ""])
+                     f"{B_BATCHED * 1e3 / batched:.0f} problem-steps/s",
+                     f"{batched_torch:.1f} ms torch path"])
         if not args.policy_run:
             t_grouped, t_plain = _time_training(system, robot, scenes, g, device)
             metrics.update({f"{key}/train_samples_per_s": B / t_grouped, f"{key}/train_samples_per_s_random": B / t_plain,

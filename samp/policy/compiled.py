@@ -70,8 +70,13 @@ class StepInputs:
         self.goal_extra = bool(cfg.goal_features)
         self.env_encoder = bool(cfg.env_encoder)
         self.system = system
-        self.features = np.zeros((0, 2, 2, 2, 1), np.float32)
         self.box = (np.zeros(3), np.ones(3))
+        # Load the kernel now (compiled once per machine, then read from numba's cache in ~0.2 s), outside any
+        # timed step, on a blank feature volume; a step before `set_features` is refused (IndexError).
+        self.features = np.zeros((1, 2, 2, 2, cfg.channels), np.float32)
+        home = robot.home.detach().cpu().double()[None]
+        self(home, home, torch.zeros(1, dtype=torch.long))
+        self.features = np.zeros((0, 2, 2, 2, cfg.channels), np.float32)
 
     def set_features(self, features: torch.Tensor | None) -> None:
         """The batch's encoded scenes (S, C, n', n', n') from `PolicySystem.encode` (None without the env branch)."""
@@ -84,9 +89,9 @@ class StepInputs:
         self.box = (np.asarray(lo, np.float64), np.asarray(hi, np.float64))
 
     def __call__(self, q: torch.Tensor, q_goal: torch.Tensor, scene_index: torch.Tensor):
-        """q, q_goal (B, n) radians, scene_index (B,) into the features -> the torch tensors SAMPNet.head reads:
-        u_t (B, n), the config MLP's input (B, 4n + 1 or 2n), the env MLP's (B, M (C + 1)) and the PointNet's
-        (B, M, 4), float32."""
+        """q, q_goal (B, n) radians, scene_index (B,) into the features (IndexError outside them) -> the torch
+        tensors SAMPNet.head reads: u_t (B, n), the config MLP's input (B, 4n + 1 or 2n), the env MLP's
+        (B, M (C + 1)) and the PointNet's (B, M, 4), float32."""
         n = len(self.limits)
         if q.dim() != 2 or q.shape[1] != n or q_goal.shape != q.shape:
             raise ValueError(f"q and q_goal must have shape (B, {n}), got {tuple(q.shape)} and {tuple(q_goal.shape)}")
@@ -117,6 +122,8 @@ def _step_inputs(q, q_goal, limits, A, D, axes, K, K2, revolute, take, points, p
     u = np.empty((2, n))
     poses = serial_link_poses(q, A, D, axes, K, K2, revolute, take)  # (B, L, 4, 4)
     for b in range(B):
+        if env_encoder and not 0 <= scene_index[b] < features.shape[0]:
+            raise IndexError("scene_index is outside the encoded scenes (reset the policy with this batch's grids)")
         finite = True
         for j in range(n):
             finite = finite and math.isfinite(q[b, j])

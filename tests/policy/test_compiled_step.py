@@ -141,3 +141,17 @@ def test_compiled_is_refused_where_it_does_not_apply(payload, binding):
         system.planner(compiled=True)
     with pytest.raises(ValueError, match="shape"):
         _system(payload, binding).planner()._inputs(torch.zeros(1, 6), torch.zeros(1, 6), torch.zeros(1, dtype=torch.long))
+
+
+def test_a_scene_index_outside_the_encoded_scenes_is_refused(payload, binding):
+    """The compiled loops do not check bounds themselves: the kernel refuses the index before it reads."""
+    system = _system(payload, binding)
+    env = _env(system, scenes=2, rows=3)
+    policy = SAMPStepPolicy(system)
+    q, q_goal = _configurations(system, 3, seed=5)
+    with pytest.raises(IndexError, match="outside the encoded scenes"):  # nothing encoded yet
+        policy._inputs(q, q_goal, env.scene_index)
+    policy.reset(env)
+    with pytest.raises(IndexError, match="outside the encoded scenes"):
+        policy.step(q, q_goal, EnvBatch(env.grids, env.bounds, torch.tensor([0, 2, 1])))
+    assert policy.step(q, q_goal, env).isfinite().all()

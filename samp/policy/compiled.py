@@ -63,7 +63,8 @@ class StepInputs:
             self.table_joint, self.table_lo, self.table_span = np.zeros(0, np.int64), np.zeros(0), np.ones(0)
         else:
             self.table = distances.table.cpu().float().numpy()  # (P, K) network values at K angles
-            self.table_point, self.table_joint = distances.table_point.cpu().numpy(), distances.table_joint.cpu().numpy()
+            self.table_point = distances.table_point.cpu().numpy()
+            self.table_joint = distances.table_joint.cpu().numpy()
             self.table_lo = distances.table_lo.cpu().double().numpy()
             self.table_span = distances.table_span.cpu().double().numpy()
         self.robot_sdf_feature = bool(system.hparams.robot_sdf_feature)

@@ -18,8 +18,8 @@ class SAMPStepPolicy(Plannable):
 
     `compiled`: on a CPU, compute what the network reads (robot points, robot SDF, scene features, normalised
     configurations) in one compiled call (`samp.policy.compiled`), where the system allows it (a serial arm,
-    robot_sdf_pairs=near); None (the default) does so wherever it is allowed, False keeps the torch path, which
-    the two agree with to float32 rounding.
+    robot_sdf_pairs=near); None (the default) does so wherever it is allowed, False keeps the torch path. The
+    two agree to float32 rounding.
     """
 
     def __init__(self, system, name: str = "samp", compiled: bool | None = None):

@@ -156,8 +156,8 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         from samp.policy.step import SAMPStepPolicy
 
         if options:
-            raise ValueError(f"the samp policy takes only robot_sdf_tables, robot_sdf_pairs, compiled and check as planner "
-                             f"options, got {sorted(options)}")
+            raise ValueError("the samp policy takes only robot_sdf_tables, robot_sdf_pairs, compiled and check as "
+                             f"planner options, got {sorted(options)}")
         if robot_sdf_tables is not None:
             if not isinstance(robot_sdf_tables, int) or robot_sdf_tables < 0 or robot_sdf_tables == 1:
                 raise ValueError(f"robot_sdf_tables must be 0 (exact) or an integer >= 2, got {robot_sdf_tables!r}")
@@ -168,8 +168,8 @@ class PolicySystem(PolicySystemBase, kind="samp"):
             return SAMPStepPolicy(self, compiled=compiled)
         from samp.policy.checked import CheckConfig, CheckedPolicy
 
-        return CheckedPolicy(SAMPStepPolicy(self, compiled=compiled), CheckConfig(**check) if isinstance(check, dict) else
-                             CheckConfig(candidates=check))
+        config = CheckConfig(**check) if isinstance(check, dict) else CheckConfig(candidates=check)
+        return CheckedPolicy(SAMPStepPolicy(self, compiled=compiled), config)
 
     # ------------------------------------------------------------------ training
     def _losses(self, batch: dict) -> dict[str, torch.Tensor]:

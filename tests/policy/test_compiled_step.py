@@ -139,8 +139,9 @@ def test_compiled_is_refused_where_it_does_not_apply(payload, binding):
     assert system.planner()._inputs is None  # the default falls back to the torch path
     with pytest.raises(ValueError, match="robot_sdf_pairs=near"):
         system.planner(compiled=True)
+    inputs = _system(payload, binding).planner()._inputs
     with pytest.raises(ValueError, match="shape"):
-        _system(payload, binding).planner()._inputs(torch.zeros(1, 6), torch.zeros(1, 6), torch.zeros(1, dtype=torch.long))
+        inputs(torch.zeros(1, 6), torch.zeros(1, 6), torch.zeros(1, dtype=torch.long))
 
 
 def test_a_scene_index_outside_the_encoded_scenes_is_refused(payload, binding):

@@ -2,7 +2,7 @@
 
 At B = 1 a step in torch is about fifty small operations before the network's products (forward kinematics,
 posing the 1024 robot points, the robot SDF's tables, grid sampling, normalisation, concatenations), each
-paying torch's per-call overhead: about 0.8 ms of a 2.3 ms step on a 2-core CPU. `StepInputs` computes the
+paying torch's per-call overhead: 0.7 to 0.8 ms of a 2.3 ms step on a 2-core CPU. `StepInputs` computes the
 same inputs in one pass of compiled loops:
 
 * the robot points posed at q: the serial arm's link poses (`samp.sim.broadphase.serial_link_poses`, float64)

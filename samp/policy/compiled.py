@@ -50,7 +50,8 @@ class StepInputs:
 
     def __init__(self, system):
         if not compiled_step_available(system):
-            raise ValueError("the compiled step needs a CPU policy of a serial arm with robot_sdf_pairs=near")
+            raise ValueError("the compiled step needs a CPU policy of a serial arm with robot_sdf_pairs=near; this one "
+                             f"is on {system.device} with robot_sdf_pairs={system.robot_sdf_pairs}")
         robot, cfg = system.robot, system.net_cfg
         distances = system.robot_sdf.self_distances(system.robot_sdf_tables)
         self.fk = robot.serial_fk.numpy_constants()

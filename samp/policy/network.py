@@ -314,7 +314,8 @@ class SAMPNet(nn.Module):
              point_in: torch.Tensor | None) -> torch.Tensor:
         """The learned layers of a step, from their inputs: u_t (B, n); config_in (B, 2n or 4n + 1) from
         `goal_features`; env_in (B, M (C + 1)) each point's scene features and robot SDF, flattened; point_in
-        (B, M, 4) the points and their robot SDF. -> (B, n) the next configuration, normalised and clamped."""
+        (B, M, 4) the points and their robot SDF (either is ignored, and may be None, without its branch).
+        -> (B, n) the next configuration, normalised and clamped."""
         parts = [_run_mlp(self.config_mlp, config_in)]
         if self.cfg.env_encoder:
             parts.append(_run_mlp(self.env_mlp, env_in))

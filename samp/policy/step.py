@@ -28,13 +28,15 @@ class SAMPStepPolicy(Plannable):
         system.fitted()
         self.system, self.robot, self.name, self.n_e = system, system.robot, name, system.n_e
         self._features = None
-        if compiled and not compiled_step_available(system):
-            raise ValueError("compiled=True needs a CPU policy of a serial arm with robot_sdf_pairs=near; "
-                             f"this one is on {system.device} with robot_sdf_pairs={system.robot_sdf_pairs}")
         # What depends only on the robot and the robot SDF's weights is built now, outside any timed step.
         system.robot_sdf.self_distances(system.robot_sdf_tables)
         use = compiled_step_available(system) if compiled is None else compiled
-        self._inputs = StepInputs(system) if use else None
+        self._inputs = StepInputs(system) if use else None  # StepInputs refuses a system it cannot serve
+
+    @property
+    def compiled(self) -> bool:
+        """Whether steps take the compiled inputs (`samp.policy.compiled`) or the torch path."""
+        return self._inputs is not None
 
     def reset(self, env) -> None:
         self.system.check_env(env)
@@ -50,8 +52,5 @@ class SAMPStepPolicy(Plannable):
             if self._inputs is None:
                 return self.system.predict(q, q_goal, self._features, env.scene_index, self.system.bounds,
                                            near=self.system.robot_sdf_pairs == "near")
-            u_t, config_in, env_in, point_in = self._inputs(q, q_goal, env.scene_index)
-            net = self.system.net
-            u = net.head(u_t, config_in, env_in if net.cfg.env_encoder else None,
-                         point_in if net.cfg.point_encoder else None)
-            return denormalize(u, self.system.limits).to(q.device)
+            u = self.system.net.head(*self._inputs(q, q_goal, env.scene_index))  # head skips a branch it lacks
+            return denormalize(u, self.system.limits)

@@ -16,11 +16,11 @@ from samp.scene.sdf import obstacle_parts
 
 pb = import_pybullet()  # without its build-time banner
 
-__all__ = ["Obstacle", "make_obstacle"]
+__all__ = ["ObstacleBody", "make_obstacle"]
 
 
 @dataclass(frozen=True)
-class Obstacle:
+class ObstacleBody:
     """One static pybullet body of an obstacle and what its distance needs to become exact."""
 
     name: str  # the scene obstacle's name (a mesh obstacle of several bodies has one entry per body)
@@ -58,7 +58,7 @@ def _obstacle_shapes(o: SceneObstacle, client: int) -> list[tuple[int, float, tr
     raise TypeError(f"unknown obstacle type {type(o).__name__}; expected Box, Cylinder, Sphere or MeshObstacle")
 
 
-def make_obstacle(o: SceneObstacle, client: int) -> list[Obstacle]:
+def make_obstacle(o: SceneObstacle, client: int) -> list[ObstacleBody]:
     """The static pybullet bodies of one scene obstacle, posed, with what their distances need."""
     bodies = []
     for shape, inflation, mesh in _obstacle_shapes(o, client):
@@ -66,5 +66,5 @@ def make_obstacle(o: SceneObstacle, client: int) -> list[Obstacle]:
             raise RuntimeError(f"pybullet could not build a collision shape for obstacle {o.name!r} ({o.kind})")
         body = pb.createMultiBody(0, shape, basePosition=o.pose.position, baseOrientation=o.pose.quaternion,
                                   physicsClientId=client)
-        bodies.append(Obstacle(o.name, body, inflation, mesh, o.pose.matrix()))
+        bodies.append(ObstacleBody(o.name, body, inflation, mesh, o.pose.matrix()))
     return bodies

@@ -30,7 +30,7 @@ import trimesh
 
 from samp.scene.model import Scene
 from samp.sim.broadphase import part_gaps, quaternions, serial_link_poses
-from samp.sim.obstacles import Obstacle, make_obstacle
+from samp.sim.obstacles import ObstacleBody, make_obstacle
 from samp.robot.bodies import MESH_MARGIN, LinkBodies
 from samp.console import import_pybullet
 
@@ -360,7 +360,7 @@ class World:
                 return -float(trimesh.proximity.signed_distance(o.mesh, local).max())
         return d if d <= limit else np.inf
 
-    def _part_vertices_in(self, T: np.ndarray, part: int, o: Obstacle) -> np.ndarray:
+    def _part_vertices_in(self, T: np.ndarray, part: int, o: ObstacleBody) -> np.ndarray:
         """(V, 3) vertices of part `part`, posed by T (L, 4, 4), in the frame of obstacle o."""
         link_pose = T[self.links.part_links[part]]
         world = self._parts[part].vertices @ link_pose[:3, :3].T + link_pose[:3, 3]  # (V, 3) base frame

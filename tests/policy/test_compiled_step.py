@@ -80,7 +80,7 @@ def test_the_compiled_step_is_the_torch_step(payload, binding, model):
     env = _env(system)
     q, q_goal = _configurations(system, 7, seed=1)
     fast, plain = SAMPStepPolicy(system), SAMPStepPolicy(system, compiled=False)
-    assert fast._inputs is not None and plain._inputs is None
+    assert fast.compiled and not plain.compiled
     for policy in (fast, plain):
         policy.reset(env)
     got, want = fast.step(q, q_goal, env), plain.step(q, q_goal, env)
@@ -136,7 +136,7 @@ def test_compiled_is_refused_where_it_does_not_apply(payload, binding):
     system = _system(payload, binding)
     system.planner(robot_sdf_tables=0)  # the exact robot SDF at every pair: the network, not tables
     assert not compiled_step_available(system)
-    assert system.planner()._inputs is None  # the default falls back to the torch path
+    assert not system.planner().compiled  # the default falls back to the torch path
     with pytest.raises(ValueError, match="robot_sdf_pairs=near"):
         system.planner(compiled=True)
     inputs = _system(payload, binding).planner()._inputs

@@ -136,7 +136,7 @@ def run(args) -> tuple[dict, list[list]]:
     rows = list(range(0, len(problems), max(1, len(problems) // args.expert_problems)))[:args.expert_problems]
     subset = [problems[i] for i in rows]  # spread over the scenes
     metrics, table = _report(args, label, len(problems), t, batched, single, full, _expert_times(exact, subset), rows)
-    if getattr(policy, "_inputs", None) is not None:  # a SAMP policy whose default step is compiled: the torch path too
+    if getattr(policy, "compiled", False):  # a SAMP policy whose default step is compiled: its torch path too
         from samp.eval import load_planner
 
         plain = load_planner(args.policy_run, compiled=False)

@@ -7,7 +7,7 @@ TORCH_VERSION ?= 2.13.0
 TORCH_CPU_INDEX ?= https://download.pytorch.org/whl/cpu
 STAMP := $(VENV)/.samp-installed
 
-.PHONY: install demo test test-fast bench clean-cache
+.PHONY: install demo test test-fast bench docs docs-serve clean-cache
 
 install: $(STAMP)
 
@@ -44,5 +44,14 @@ test-fast: install
 bench: install
 	$(PY) tools/bench.py robot --out runs/bench/robot.json
 
+# The documentation site (mkdocs.yml, docs/): built strictly into site/ (a broken link, anchor or
+# reference fails the build), or served with live reload on http://127.0.0.1:8000.
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
+
+docs-serve: install
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs serve
+
+# samp's disk cache (robot points, anchor grids, compiled kernels): $SAMP_CACHE_DIR, else ~/.cache/samp.
 clean-cache:
-	rm -rf .cache
+	rm -rf "$${SAMP_CACHE_DIR:-$${XDG_CACHE_HOME:-$$HOME/.cache}/samp}"

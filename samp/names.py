@@ -10,7 +10,7 @@ __all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "
            "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRAIN_LOG", "TRAIN_PREFIX",
            "VAL_PREFIX"]
 
-# ---------------------------------------------------------------- a run folder (DESIGN section 6)
+# ---------------------------------------------------------------- a run folder (docs/design.md section 6)
 RUN_JSON = "run.json"
 METRICS_CSV = "metrics.csv"
 CONFIG_DIR = ".hydra"
@@ -43,10 +43,10 @@ BATCH_STEP = "step"  # (B,) long, t
 
 # ---------------------------------------------------------------- logged metrics and splits
 TRAIN_PREFIX, VAL_PREFIX, EVAL_PREFIX = "train/", "val/", "eval/"
-# Scene splits of a dataset (DESIGN section 4): training scenes hold demonstrations, validation scenes drive
+# Scene splits of a dataset (docs/design.md section 4): training scenes hold demonstrations, validation scenes drive
 # the validation loss, the evaluation during training and the choice of checkpoint, test scenes are seen
 # only by the final evaluation.
 SPLITS = ("train", "val", "test")
-# Datasets written before issue 17 had one "heldout" split that both validated and tested: it reads as "val".
+# Older datasets have one "heldout" split, which both validated and tested: it reads as "val".
 SPLIT_ALIASES = {"heldout": "val"}
 ALL_SPLITS = "all"  # the pooled metrics over every problem evaluated

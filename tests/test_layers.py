@@ -1,4 +1,4 @@
-"""The package's layers (ARCHITECTURE.md, DESIGN section 2): every import, function-local ones included,
+"""The package's layers (docs/architecture.md, docs/design.md section 2): every import, function-local ones included,
 points to the same layer or one below. Read with `ast`, so an import inside a function counts as much as
 one at the top of a module; a test plants an upward import to show the check bites."""
 

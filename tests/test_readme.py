@@ -1,20 +1,20 @@
-"""The README as a test: every command of its fenced shell blocks is run here, shrunk (the tiny `smoke`
-dataset, a few steps, one or two problems), from a working folder outside the repository with
-`SAMP_DATASETS_DIR`, `SAMP_RUNS_DIR` and `SAMP_CACHE_DIR` in a temporary folder; each must succeed and
-write what the README says where it says (under the configured folders), and nothing may be written into
-the repository.
+"""The README and the documentation site as a test: every command of the fenced shell blocks of README.md
+and docs/*.md is run here, shrunk (the tiny `smoke` dataset, a few steps, one or two problems), from a
+working folder outside the repository with `SAMP_DATASETS_DIR`, `SAMP_RUNS_DIR` and `SAMP_CACHE_DIR` in a
+temporary folder; each must succeed and write what the page says where it says (under the configured
+folders), and nothing may be written into the repository.
 
-`STEPS` maps each documented command, exactly as the README spells it (comments dropped, lines joined),
+`STEPS` maps each documented command, exactly as the pages spell it (comments dropped, lines joined),
 to what is done with it, in the order they run:
 
 * `Run(shrunk)`: run the shrunk form; `writes` are globs (under the temporary folder) it must create.
 * `Compose(args, reason)`: a command that cannot run here (a GPU, SLURM, hours of training, a tracker
   login) is only composed: `python -m samp.train ... --cfg job` (or `--cfg hydra`) must print its config.
 * `Same(command, reason)`: what another step already runs (`make demo` is `samp.train experiment=quickstart`).
-* `File(path)`: a file the README tells you to open (`rerun FILE`, `xdg-open FILE`) must exist.
-* `Skip(reason)`: installs, servers and the test suite itself.
+* `File(path)`: a file a page tells you to open (`rerun FILE`, `xdg-open FILE`) must exist.
+* `Skip(reason)`: installs, servers, the docs build (tests/docs/) and the test suite itself.
 
-`test_every_readme_command_is_in_the_table` (fast) fails when the README gains a command that `STEPS` does
+`test_every_documented_command_is_in_the_table` (fast) fails when a page gains a command that `STEPS` does
 not cover, or loses one it still lists, so a newly documented command cannot go untested.
 """
 
@@ -35,10 +35,19 @@ REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
 
 
-def readme_commands(text: str | None = None) -> list[str]:
-    """The commands of the README's ```bash blocks: continuation lines joined, comments and blank lines
-    dropped, `a ; b` split, whitespace collapsed; in README order, repeats kept once."""
-    text = README.read_text() if text is None else text
+def documented_pages() -> list[Path]:
+    """README.md, then every page of the documentation site (docs/), in name order."""
+    return [README, *sorted((REPO / "docs").glob("**/*.md"))]
+
+
+def documented_text() -> str:
+    return "\n".join(page.read_text() for page in documented_pages())
+
+
+def documented_commands(text: str | None = None) -> list[str]:
+    """The commands of the ```bash blocks of the README and the docs pages: continuation lines joined,
+    comments and blank lines dropped, `a ; b` split, whitespace collapsed; in page order, repeats kept once."""
+    text = documented_text() if text is None else text
     found = []
     for block in re.findall(r"```(?:bash|sh|shell|console)\n(.*?)```", text, re.S):
         for line in block.replace("\\\n", " ").splitlines():
@@ -78,6 +87,14 @@ class Skip:
     reason: str
 
 
+@dataclass
+class RunElsewhere:
+    """A command another test of the suite runs in shrunk form: `test` (a path under tests/) must hold
+    `needle`, the shrunk invocation it makes."""
+    test: str
+    needle: str
+
+
 # Shrinking: the smoke dataset (2 scenes, grids at n_e 16), four training batches of one epoch, one
 # evaluation problem per split and no benchmark unless the command is about the benchmark.
 TINY_SDF = "\"build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']\""
@@ -88,13 +105,13 @@ POLICY = ("datamodule.dataset=smoke datamodule.n_e=16 datamodule.val_samples=50 
 SWEPT = (f"{POLICY} system.robot_sdf=robot_sdf_panda_quick callbacks.eval.problems=1 callbacks.eval.every_k_epochs=1 "
          "\"hydra.sweeper.params.experiment='samp_n40,samp_n70'\"")
 EVAL = "problems=1 splits=[val] benchmark=null record=false"
-SWEEP = "{tmp}/runs/sweeps/anchor_size"  # README paths under runs/ are under $SAMP_RUNS_DIR here
+SWEEP = "{tmp}/runs/sweeps/anchor_size"  # documented paths under runs/ are under $SAMP_RUNS_DIR here
 MEMBERS = [f"{SWEEP}/experiment=samp_n40/run.json", f"{SWEEP}/experiment=samp_n70/run.json"]
 GPU = "needs a GPU"
 SLURM = "needs a SLURM cluster"
 LONG = "hours of training at this size; the same recipe runs shrunk in the steps above"
-# The README's Table I at the quickstart budget (its dataset id, the budget every method shares, SAMP's extras)
-TABLE_I_DATA = "quickstart@b6d6f297f058"
+# Table I at the quickstart budget (docs/baselines.md) (its dataset id, the budget every method shares, SAMP's extras)
+TABLE_I_DATA = "quickstart@ID"  # the id your own generate printed
 TABLE_I_BUDGET = (f"datamodule.dataset={TABLE_I_DATA} trainer.max_epochs=5 system.optimizer.lr=1e-3 system.scheduler.T_0=5 "
                   "system.scheduler.T_mult=1 datamodule.val_samples=1000")
 TABLE_I_SAMP = "system.robot_sdf=robot_sdf_panda_quick 'model.point_hidden=[32,64,128]' callbacks=default"
@@ -283,36 +300,70 @@ STEPS: list[tuple[str, object]] = [
      Run("python {repo}/tools/self_collision_pairs.py panda --samples 50")),
     ("python -m samp.scene show scene=tabletop seed=3 n_e=64",
      Run("python -m samp.scene show scene=tabletop seed=3 n_e=16", ["runs/scene/tabletop_3/scene.rrd"])),
+    # The training entry point's own help and a composed config; a second demo run to compare with
+    ("python -m samp.train --help", Run("python -m samp.train --help", prints=["experiment", "sweep"])),
+    ("python -m samp.train experiment=quickstart --cfg job",
+     Run("python -m samp.train experiment=quickstart --cfg job", prints=["name: quickstart"])),
+    ("python -m samp.train experiment=quickstart seed=1",
+     Compose("experiment=quickstart seed=1", "a second demo run, the same recipe as the first (run above)")),
     # Not run here
+    ("make docs", Skip("mkdocs build --strict, run by tests/docs/test_docs_build.py")),
+    ("make docs-serve", Skip("starts a web server")),
     ("make test", Skip("the test suite itself")),
+    ("make test-fast", Skip("the test suite itself")),
+    ("make install", Skip("installs packages")),
+    ("make bench", Skip("the robot suite; tests/tools/test_bench_cli.py runs every suite at tiny settings")),
+    ("python tools/bench.py baselines [--runs RUN ...]",
+     Run("python {repo}/tools/bench.py baselines --baseline-problems 1", prints=["mpinet", "simpnet"])),
+    ("python -m samp.train -m sweep=paper_table_1 trainer=gpu", Compose("-m sweep=paper_table_1 trainer=gpu", GPU)),
+    ("python -m samp.train -m sweep=anchor_size trainer=gpu", Compose("-m sweep=anchor_size trainer=gpu --cfg hydra", GPU)),
+    ("python -m samp.train -m sweep=loss_ablation trainer=gpu",
+     Compose("-m sweep=loss_ablation trainer=gpu --cfg hydra", GPU)),
+    # Benchmarks: tests/tools/test_bench_cli.py runs every suite end to end at tiny settings
+    ("python tools/bench.py perception", RunElsewhere("tools/test_bench_cli.py", '"perception": ["--anchors", "8"]')),
+    ("python tools/bench.py perception --run runs/EXP/TIME",
+     Run("python {repo}/tools/bench.py perception --anchors 8 --run {run} --dataset smoke", prints=["success"])),
+    ("python tools/bench.py data", RunElsewhere("tools/test_bench_cli.py", '"data": ["--workers", "1"')),
+    ("python tools/bench.py policy --anchors 40 100 160 --robot-sdf ARTIFACT",
+     RunElsewhere("tools/test_bench_cli.py", '"policy": ["--anchors", "8"]')),
+    ("python tools/bench.py policy --policy-run RUN --baseline-src DIR",
+     Skip("needs a second checkout (a git worktree of another commit) and a trained run")),
+    # The step's options on the demo's run (each a further evaluation, eval-N/)
+    ("python -m samp.eval run=RUN robot_sdf_pairs=all", Run(f"python -m samp.eval run={{run}} robot_sdf_pairs=all {EVAL}")),
+    ("python -m samp.eval run=RUN compiled=false", Run(f"python -m samp.eval run={{run}} compiled=false {EVAL}")),
+    ("python tools/bench.py -h", Run("python {repo}/tools/bench.py -h", prints=["robot", "policy"])),
+    ("python tools/mutants.py --list", Run("python {repo}/tools/mutants.py --list")),
     ("pip install -e '.[mlflow]'", Skip("installs packages")),
     ("pip install -e '.[wandb]'", Skip("installs packages")),
     ("mlflow ui --backend-store-uri sqlite:///runs/mlflow.db", Skip("starts a web server")),
 ]
 
-# The camera set the README shows as a YAML example, used by the `camera=path/to/my_cameras.yaml` step.
+# The camera set docs/perception.md shows as a YAML example, used by the `camera=path/to/my_cameras.yaml` step.
 CAMERA_YAML = re.compile(r"```yaml\n(_target_: samp.sim.camera.camera_set.*?)```", re.S)
 
 
-def test_every_readme_command_is_in_the_table():
-    documented, covered = readme_commands(), [c for c, _ in STEPS]
+def test_every_documented_command_is_in_the_table():
+    documented, covered = documented_commands(), [c for c, _ in STEPS]
     assert len(covered) == len(set(covered)), "a command is listed twice in STEPS"
     missing = [c for c in documented if c not in covered]
-    assert not missing, "README commands with no entry in tests/test_readme.py STEPS (add how to run them shrunk):\n" \
+    assert not missing, "commands of README.md or docs/ with no entry in tests/test_readme.py STEPS (add how to run them shrunk):\n" \
         + "\n".join(missing)
     stale = [c for c in covered if c not in documented]
-    assert not stale, "STEPS lists commands the README no longer has:\n" + "\n".join(stale)
+    assert not stale, "STEPS lists commands that neither README.md nor docs/ has:\n" + "\n".join(stale)
     steps = dict(STEPS)
     for command, step in STEPS:
         if isinstance(step, Same):
             assert isinstance(steps.get(step.command), Run), f"{command!r} is the same as {step.command!r}, not run"
+        if isinstance(step, RunElsewhere):
+            test = REPO / "tests" / step.test
+            assert test.is_file() and step.needle in test.read_text(), f"{command!r}: {test} does not run {step.needle}"
     for example in sorted((REPO / "examples").glob("*.py")):  # examples are documented commands like any other
-        assert any(f"examples/{example.name}" in c for c in documented), f"README runs no command of {example}"
+        assert any(f"examples/{example.name}" in c for c in documented), f"no page runs a command of {example}"
 
 
-def test_readme_command_extraction():
+def test_command_extraction():
     text = "x\n```bash\npython -m a b=1   # a comment\n# only a comment\npython -m c \\\n    d=2 ; python -m e\n```\n"
-    assert readme_commands(text) == ["python -m a b=1", "python -m c d=2", "python -m e"]
+    assert documented_commands(text) == ["python -m a b=1", "python -m c d=2", "python -m e"]
 
 
 def _snapshot(root: Path) -> dict[str, int]:
@@ -353,7 +404,7 @@ class _Runner:
         with torch costs seconds each; everything that trains, plans or evaluates runs as a subprocess."""
         module = argv[2] if argv[1:2] == ["-m"] else None
         quick = module == "samp.runs" or (module == "samp.data" and argv[3] in ("ls", "show", "verify", "inspect")) \
-            or (module == "samp.train" and any(a.startswith("--cfg") for a in argv))
+            or (module == "samp.train" and any(a.startswith("--cfg") or a in ("--help", "-h") for a in argv))
         if not quick:
             out = subprocess.run(argv, cwd=self.work, env=self.env, capture_output=True, text=True, timeout=timeout)
             return out.returncode, out.stdout, out.stderr
@@ -400,7 +451,7 @@ class _Runner:
         elif isinstance(step, File):
             path = Path(step.path.format(**self.fields()))
             if not path.is_file():
-                self.failures.append(f"{command}: the README points at {path}, which does not exist")
+                self.failures.append(f"{command}: the docs point at {path}, which does not exist")
         self.times.append((time.perf_counter() - start, command))
 
 
@@ -409,18 +460,18 @@ def test_every_readme_command_works_where_it_says(tmp_path, monkeypatch):
     """Every step of STEPS in order; the repository tree is unchanged afterwards and everything written
     lies under the temporary folder's documented places."""
     runner = _Runner(tmp_path, monkeypatch)
-    cameras = CAMERA_YAML.search(README.read_text())
-    assert cameras, "the README's camera-set YAML example is gone"
+    cameras = CAMERA_YAML.search(documented_text())
+    assert cameras, "the camera-set YAML example of docs/perception.md is gone"
     (tmp_path / "path" / "to").mkdir(parents=True)
     (tmp_path / "path" / "to" / "my_cameras.yaml").write_text(cameras.group(1))
     before = _snapshot(REPO)
     for command, step in STEPS:
         runner.run(command, step)
     print("\n".join(f"{s:7.1f} s  {c}" for s, c in sorted(runner.times, reverse=True)[:12]))
-    assert not runner.failures, f"{len(runner.failures)} README command(s) failed:\n\n" + "\n\n".join(runner.failures)
+    assert not runner.failures, f"{len(runner.failures)} documented command(s) failed:\n\n" + "\n\n".join(runner.failures)
     after = _snapshot(REPO)
     changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
-    assert not changed, f"README commands wrote into the repository: {changed[:20]}"
+    assert not changed, f"documented commands wrote into the repository: {changed[:20]}"
     written = sorted(p.name for p in tmp_path.iterdir())
     assert set(written) <= {"work", "runs", "datasets", "cache", "bench", "check", "recon", "recon1", "recon2", "path",
                             "out", "cloud", "cloud2"}, written

@@ -25,7 +25,7 @@ def dataset_card(manifest: dict) -> str:
     lines = [
         f"# Dataset card: {ref}", "",
         f"Created {manifest.get('created', '?')} by samp {code.get('package', '?')} (git {code.get('git_commit', '?')}"
-        f"{', with uncommitted changes' if code.get('git_dirty') else ''}), scene-file format "
+        f"{', with uncommitted changes' if code.get('git_dirty') else ''}), manifest format "
         f"{manifest.get('format_version', '?')}.", "",
         "## What it holds", "",
         f"- robot: `{robot.get('name', '?')}` (asset hash `{str(robot.get('asset_hash', '?'))[:16]}...`)",

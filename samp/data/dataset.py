@@ -26,7 +26,7 @@ __all__ = ["Dataset", "canonical_split", "open_dataset", "scene_count_problems",
 
 
 def canonical_split(split: str) -> str:
-    """"train" | "val" | "test", with the pre-issue-17 "heldout" read as "val"; ValueError otherwise."""
+    """"train" | "val" | "test", with the older "heldout" read as "val"; ValueError otherwise."""
     if split not in SPLITS and split not in SPLIT_ALIASES:
         raise ValueError(f"split must be one of {', '.join(SPLITS)} (or the older 'heldout', read as 'val'), "
                          f"got {split!r}")
@@ -41,8 +41,8 @@ class Dataset:
         scenes: list[Scene] in scene-index order: train scenes, then val, then test.
         scene_split: list of "train" | "val" | "test" per scene. scene_hashes: list of `Scene.content_hash()`
             per scene, the scene's identity (from the manifest; computed for manifests without them).
-        legacy_splits: True for a dataset written before issue 17: its "heldout" scenes (read as "val") both
-            validated and tested, and it stores no evaluation problems. False for newer datasets.
+        legacy_splits: True for an older dataset with two splits: its "heldout" scenes (read as "val") both
+            validated and tested, and it stores no evaluation problems. False for datasets with three splits.
         trajectories: (N, T, n) float64 radians, the successful demonstrations of every scene in order.
         traj_scene: (N,) long scene index of each trajectory; traj_split: (N,) "train" | "val" (test scenes
             have no demonstrations).

@@ -5,7 +5,7 @@
 (AVX2, AVX-512, ...) and rounds differently with each; a last-bit difference sends OMPL down another path
 and gives the dataset another id. A process that plans asks MKL for its CPU-independent path first. MKL
 fixes its path at its first call, and that path is 2 to 5 times slower for training's large products, so a
-training process is never switched (README, "The same bytes on every CPU")."""
+training process is never switched (docs/datasets.md, "The same bytes on every CPU")."""
 
 from __future__ import annotations
 

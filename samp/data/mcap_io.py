@@ -65,7 +65,7 @@ EPISODE_SCHEMA = {
                    "detour": {"type": ["boolean", "null"]},  # format 3: the straight start-goal line is blocked
                    "stats": {"type": "object"}},
 }
-FILE_SPLITS = (*SPLITS, *SPLIT_ALIASES)  # "heldout": files written before issue 17 (and their rewrites)
+FILE_SPLITS = (*SPLITS, *SPLIT_ALIASES)  # "heldout": older files with two splits (and their rewrites)
 SCENE_SPEC_SCHEMA = {"type": "object", "title": "samp.SceneSpec", "required": ["scene_index", "split", "scene"],
                      "properties": {"scene_index": {"type": "integer"}, "split": {"enum": list(FILE_SPLITS)},
                                     "scene": {"type": "object"}}}
@@ -170,7 +170,7 @@ def write_scene_file(path: Path, record: SceneRecord) -> None:
     _check_pairs(record.eval_episodes, eval_trajectories, "evaluation")
     if record.eval_episodes and not record.has_eval_topics:
         raise ValueError(f"{len(record.eval_episodes)} evaluation problems for a scene file without evaluation topics "
-                         "(has_eval_topics False, the layout of datasets written before issue 17)")
+                         "(has_eval_topics False, the layout of older datasets with two splits)")
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)

@@ -107,8 +107,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
         n_e: the grid resolution (must be stored in the dataset).
         batch_size: samples per batch (the paper: 50). scenes_per_batch: distinct scenes per training batch
             (0: plain random batches). noise: std of the Gaussian noise on training q_t (radians).
-        val_split: "val" (validate on the validation scenes' demonstrations; "heldout", its name before
-            issue 17, is a deprecated synonym) or a fraction in (0, 1) of the training scenes' trajectories.
+        val_split: "val" (validate on the validation scenes' demonstrations; "heldout", its older name, is a
+            deprecated synonym) or a fraction in (0, 1) of the training scenes' trajectories.
         val_samples: steps per validation pass (a fixed, seeded subset).
         max_trajectories: use at most this many training trajectories (None: all), for quick runs.
         max_scenes: train on the demonstrations of the first this many training scenes only (None: all), for

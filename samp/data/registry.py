@@ -1,4 +1,4 @@
-"""The local dataset registry: content ids, manifests, references, verification (DESIGN section 5).
+"""The local dataset registry: content ids, manifests, references, verification (docs/design.md section 5).
 
 A dataset lives in `<root>/<name>/<id>/` (root: `datasets/` or `$SAMP_DATASETS_DIR`) and holds data files
 plus `manifest.json`. `id` is the first 12 hex digits of sha256 over the sorted (relative path, file
@@ -8,8 +8,9 @@ when complete; a finished dataset folder is never modified.
 The manifest itself is covered by `manifest_sha256` (format version 2): sha256 of its canonical JSON
 without that key, so an edited count, split or file entry is caught by `verify` and refused by every
 reader. Manifests of format version 1 carry no such hash and stay readable: their counts are checked
-against the scene files when the dataset is opened or verified. Scene files are unchanged between the
-two versions (their metadata still says version 1), so a dataset id does not depend on the version.
+against the scene files when the dataset is opened or verified. The manifest's version and the scene
+files' (`SCENE_FILE_VERSION`) are counted apart: a manifest of either version describes the same scene
+files, so a dataset id does not depend on the manifest's version.
 """
 
 from __future__ import annotations

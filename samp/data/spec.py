@@ -30,7 +30,7 @@ from samp.scene.registry import _load_config as load_generator_config
 
 __all__ = ["DatasetSpec", "SceneJob", "available_specs", "check_overrides", "load_spec", "namespace_key"]
 
-# Keys of specs written before issue 17, and what replaced them.
+# Keys of older specs (two splits, train and heldout), and what replaced them.
 RETIRED_KEYS = {"heldout_scenes": "val_scenes and test_scenes (validation scenes drive the validation loss and the "
                                   "choice of checkpoint; test scenes only the final evaluation)"}
 

@@ -1,4 +1,4 @@
-"""Checks of executed trajectories (DESIGN section 4): goal errors, path lengths and physical violations.
+"""Checks of executed trajectories (docs/design.md section 4): goal errors, path lengths and physical violations.
 
 A trajectory (W, n) radians is executed as straight joint-space segments between its waypoints (the
 policy's steps, or the expert's waypoints). Violations are checked in pybullet (`samp.sim.World`,
@@ -25,7 +25,7 @@ __all__ = ["TrajectoryChecker", "ee_poses", "exact_robot", "goal_errors", "polyl
 
 
 def polyline_length(points: np.ndarray) -> float:
-    """(W, 3) -> sum of segment lengths (DESIGN: path length = sum ||dp_ee||); 0 for one point."""
+    """(W, 3) -> sum of segment lengths (docs/design.md: path length = sum ||dp_ee||); 0 for one point."""
     points = np.asarray(points, dtype=np.float64)
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) if len(points) > 1 else 0.0
 

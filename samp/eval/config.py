@@ -20,7 +20,7 @@ PLANNERS = ("expert", "straight", "expert_raw", "ompl_sampling")
 
 @dataclass
 class RolloutConfig:
-    """How a rollout runs and what counts as reaching the goal (DESIGN section 4)."""
+    """How a rollout runs and what counts as reaching the goal (docs/design.md section 4)."""
 
     max_steps: int = 150  # policy steps at most
     position_tolerance: float = 0.02  # reached: end-effector position error below this (m) ...

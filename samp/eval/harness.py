@@ -139,7 +139,7 @@ def _time_one_at_a_time(policy, problems: list[Problem], records: list[dict], cf
 
 def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | None = None, *, robot=None,
              grids: GridSource | None = None, progress_s: float | None = None) -> dict:
-    """Evaluate `planner` on `problems` with the definitions of DESIGN section 4.
+    """Evaluate `planner` on `problems` with the definitions of docs/design.md section 4.
 
     Args:
         planner: a `StepPolicy` (rolled out in batches) or a `TrajectoryPlanner` (e.g. `load_planner("expert")`).

@@ -1,6 +1,6 @@
 """`load_planner(source)`: a trained policy from its run folder, the expert, or the straight-line baseline.
 
-A run folder (DESIGN section 6) is read for what evaluation needs:
+A run folder (docs/design.md section 6) is read for what evaluation needs:
   * `run.json`: the dataset the run trained on and its robot. Read tolerantly, since the run registry
     writes it: `dataset` as a reference string (name@id or a folder) or a mapping with `ref`, `path`,
     or `name` and `id` (also a top-level `dataset_id`); `robot` as a name or a mapping with `name` and

@@ -1,4 +1,4 @@
-"""The paper's metrics (DESIGN section 4) from per-problem records, and their markdown table.
+"""The paper's metrics (docs/design.md section 4) from per-problem records, and their markdown table.
 
 A record is one problem's outcome (JSON-ready, `samp.eval.harness`): `reached` per position tolerance
 (final end-effector position error below it and orientation error below the orientation tolerance), the

@@ -5,7 +5,7 @@ scenes of one split ("train", "val" or "test"): problems sampled and planned by 
 demonstrations, but from a seed stream of their own and stored apart from them, so no policy trained on
 the dataset has seen them; the expert's solution and planning time come with each (or the reason it
 failed). "train" therefore measures new problems in seen scenes, "val" the scenes that chose the
-checkpoint, "test" scenes seen by nothing before (DESIGN section 4). The choice is fixed by `seed`:
+checkpoint, "test" scenes seen by nothing before (docs/design.md section 4). The choice is fixed by `seed`:
 problems are spread as evenly as possible over the split's scenes (a seeded draw within each scene),
 then ordered by scene and problem, so a rollout batch visits one scene after another.
 """
@@ -41,7 +41,8 @@ class Problem:
 
     Args:
         scene: the `Scene`.
-        q_start, q_goal: (n,) configurations; the goal pose is the end-effector pose at q_goal.
+        q_start: (n,) the start configuration.
+        q_goal: (n,) the goal configuration; the goal pose is the end-effector pose there.
         split: "train" | "val" | "test" for dataset problems; metrics are reported per split.
         name: where it came from (dataset, scene, problem), for records and recordings.
         scene_index: the scene's index in its dataset (None for a free-standing problem).
@@ -94,7 +95,7 @@ def _spread(available: list[int], count: int, rng: np.random.Generator) -> list[
 
 def problems_from_dataset(ds, split: str, count: int | None = None, seed: int = 0) -> list[Problem]:
     """Up to `count` (None: all) of the evaluation problems the dataset stores for its `split` scenes
-    ("train" | "val" | "test"; "heldout", the name before issue 17, reads as "val"), with the expert's
+    ("train" | "val" | "test"; "heldout", the older name, reads as "val"), with the expert's
     solution and planning time, or its failure reason in `expert_reason`. Problems for which no valid goal
     was found are left out (there is nothing to plan).
 

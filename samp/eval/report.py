@@ -2,7 +2,7 @@
 `python -m samp.eval` (a planner loaded from a run folder, or a built-in one) and the evaluation after
 training (`samp.train.after_fit`, the model just trained, in memory).
 
-The protocol (DESIGN section 4, "protocol 2"): problems come in *sections*, each reported on its own —
+The protocol (docs/design.md section 4, "protocol 2"): problems come in *sections*, each reported on its own —
 "val" and "train" are the stored evaluation problems of a dataset's validation and training scenes (new
 problems, never trained on), "test" those of its test scenes, "benchmark" the standing benchmark of
 unseen scenes. Beside the planner, the expert (its stored solutions and planning times) and the straight

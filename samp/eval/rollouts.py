@@ -5,7 +5,7 @@ ends a problem when its end-effector is within the goal tolerance (reached), whe
 `stall_threshold` for `stall_steps` steps in a row (stalled), when the policy returns NaN or inf
 (diverged; the last finite configuration is kept), or after `max_steps` steps. A problem keeps running
 after a collision: collisions are found afterwards on the executed trajectory (`samp.eval.checks`), so
-reaching and colliding are judged independently, as DESIGN section 4 defines them.
+reaching and colliding are judged independently, as docs/design.md section 4 defines them.
 
 Timing: each `step` call (and `reset`, if the policy has one) is timed with the device synchronised;
 a problem's solution time is the wall time of the calls it took part in. With `batch_size` 1 that is

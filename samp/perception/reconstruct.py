@@ -2,7 +2,7 @@
 transforms (`scipy.ndimage.distance_transform_edt`).
 
 The volume is the anchor lattice itself (voxel centres at the anchors: n_e per axis, inclusive linspace
-over the bounds, index order (x, y, z), DESIGN section 4), extended by `padding` metres on every side so
+over the bounds, index order (x, y, z), docs/design.md section 4), extended by `padding` metres on every side so
 that obstacles just outside the bounds (the table top lies 5 cm under the default bounds) still set the
 distances inside. Every voxel is one of:
 
@@ -52,7 +52,7 @@ UNKNOWN, FREE, OCCUPIED = 0, 1, 2  # voxel states (int8)
 UNKNOWN_POLICIES = ("occupied", "free")
 NEAR = 0.05  # metres: the reconstruction error is reported over anchors with |exact distance| below this
 RAY_CHUNK = 4_000_000  # ray samples handled at once (bounds the memory of carving)
-# Sanity of the clouds (issue 21): below MIN_INSIDE points, or below MIN_INSIDE_SHARE of them, inside the padded
+# Sanity of the clouds: below MIN_INSIDE points, or below MIN_INSIDE_SHARE of them, inside the padded
 # workspace, the clouds cannot describe it (wrong units or frame): an error. Above WARN_OUTSIDE_SHARE outside,
 # a warning (bounds tighter than the scene are legitimate; a shifted cloud is not). On the generated scenes
 # seen by conf/camera/default all points lie inside; shifted 1 m along x, 29-42 % of them do.

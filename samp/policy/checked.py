@@ -1,5 +1,5 @@
 """samp+check: several rollouts of a step policy in one batch, and the one the scene's anchor grid says is
-clear (issue 18, after Neural MP's sample-and-check; DESIGN section 4).
+clear (after Neural MP's sample-and-check; docs/design.md section 4).
 
 Candidate 0 is the plain rollout. Candidate k >= 1 first heads for a via configuration drawn around the
 midpoint of start and goal (normal, `spread` radians per joint, seeded by the problem's name), and from

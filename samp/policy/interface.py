@@ -1,4 +1,4 @@
-"""The interface between planners and the evaluation that rolls them out (DESIGN section 4).
+"""The interface between planners and the evaluation that rolls them out (docs/design.md section 4).
 
 Two kinds of planner are evaluated by the same checks and metrics:
 
@@ -27,7 +27,7 @@ class EnvBatch:
 
     Attributes:
         grids: (S, n_e, n_e, n_e) float anchor grids of the S scenes in the batch, indexed (x, y, z)
-            (DESIGN section 4), on the policy's device; None when the policy asks for none (`n_e` None).
+            (docs/design.md section 4), on the policy's device; None when the policy asks for none (`n_e` None).
         bounds: (S, 2, 3) workspace bounds of each scene, rows (min, max), metres.
         scene_index: (B,) long, which of the S scenes each problem is in.
 
@@ -65,7 +65,7 @@ class StepPolicy(Protocol):
         name: a short label for tables and records.
 
     `step(q, q_goal, env)`: q (B, n) current and q_goal (B, n) goal configurations in radians, `env` an
-    `EnvBatch` -> q_next (B, n) radians. The policy keeps its output within the joint limits (DESIGN
+    `EnvBatch` -> q_next (B, n) radians. The policy keeps its output within the joint limits (docs/design.md
     section 4: q_{t+1} = clamp(q_t + dq)); the engine does not clamp and records any violation. It is
     called under `torch.no_grad()`, and its wall time is the rollout's solution time.
 

@@ -1,4 +1,4 @@
-"""The policy's training losses, exactly as DESIGN section 4 ("Losses") defines them.
+"""The policy's training losses, exactly as docs/design.md section 4 ("Losses") defines them.
 
     L_match  = mean |T_q^(P) - T_q(P)| + mean (T_q^(P) - T_q(P))^2        (points in metres)
     L_coll   = (1/M) sum_i w_i max(0, m_i - C_i),   w_i = exp(-(d_i - d_target) / tau)
@@ -6,10 +6,10 @@
     L        = lambda_1 L_match + lambda_2 L_coll + lambda_3 L_config
 
 C_i is the environment SDF at the i-th posed point of the prediction, trilinear from the anchor grid; the
-margin m_i is d_margin (DESIGN's definition, `margin="fixed"`) or, with `margin="demo"`, min(d_margin, C*_i)
-for C*_i the environment SDF at the same point of the demonstrated next configuration: a prediction is
-asked to keep as clear as the expert did, up to d_margin, so that a demonstration that must come close to an
-obstacle (a goal inside a cabinet) is not pushed away from where it ends;
+margin m_i is d_margin (the definition of docs/design.md, `margin="fixed"`) or, with `margin="demo"`,
+min(d_margin, C*_i) for C*_i the environment SDF at the same point of the demonstrated next configuration: a
+prediction is asked to keep as clear as the expert did, up to d_margin, so that a demonstration that must come
+close to an obstacle (a goal inside a cabinet) is not pushed away from where it ends;
 d_i is the robot SDF at the same point, computed from the predicted joint angles in radians, and each
 point gets its own weight (the authors' code multiplied mean weight by mean hinge instead, and fed the
 robot SDF normalised angles; both are fixed here). The weights are treated as constants: they say how

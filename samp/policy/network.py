@@ -1,4 +1,4 @@
-"""The SAMP policy network, in plain torch (DESIGN section 4, "Policy").
+"""The SAMP policy network, in plain torch (docs/design.md section 4, "Policy").
 
 Inputs per sample: the current and goal configurations (normalised to [-1, 1] by the joint limits), the
 scene's anchor grid, the M robot points posed at the current configuration, T_q(P), and the robot SDF
@@ -44,7 +44,7 @@ class PolicyConfig:
     env_encoder: bool = True  # ablation: False drops the environment branch (no grid at all)
     goal_features: bool = True  # MLP_I also sees u_g - u_t, its direction and its length (False: the paper's [u_t, u_g])
     norm: str = "group"  # Phi_3D's normalisation: group (per scene), batch (the paper's) or none; see `EnvEncoder`
-    registration: str = "centres"  # where feature cells sit: centres (their true centres) or bounds (before 2026-11)
+    registration: str = "centres"  # where feature cells sit: centres (their true centres) or bounds (older checkpoints)
 
 
 def goal_features(u_t: torch.Tensor, u_g: torch.Tensor, extra: bool) -> torch.Tensor:

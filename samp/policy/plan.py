@@ -1,4 +1,4 @@
-"""One call to plan with a trained step policy, outside the evaluation (DESIGN section 8):
+"""One call to plan with a trained step policy, outside the evaluation (docs/design.md section 8):
 
     policy = load_policy(run_dir)
     result = policy.plan(scene, q_start, q_goal)      # or an (n_e, n_e, n_e) anchor grid instead of a scene

@@ -1,4 +1,4 @@
-"""The SAMP policy's LightningModule: SAMPNet, the frozen robot SDF and the losses (DESIGN section 4).
+"""The SAMP policy's LightningModule: SAMPNet, the frozen robot SDF and the losses (docs/design.md section 4).
 
 Training step, for a batch of (q_t + noise, q_{t+1}, q_goal, scene):
   1. pose the robot points at q_t, T_{q_t}(P), and query the frozen robot SDF there (no gradients);
@@ -77,9 +77,9 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         robot_sdf_pairs: the robot SDF input of the network at q_t, in training and in rollouts: "all" pairs
             of a point and a link (exact, up to the tables), or "near": only the pairs no arm joint or one arm
             joint apart (the rigid part and the tables), skipping the network for the rest, an approximation
-            measured on the benchmark (README, "What a step costs" and "The training step"). None (the
-            default): "near" with tables, "all" without (robot_sdf_tables=0). The collision loss's weights at
-            the prediction always use every pair.
+            measured on the benchmark (docs/performance.md, "What a step costs" and "The training step").
+            None (the default): "near" with tables, "all" without (robot_sdf_tables=0). The collision loss's
+            weights at the prediction always use every pair.
         optimizer, scheduler: `_partial_` config nodes (conf/optimizer/), see `PolicySystemBase`.
         robot_sdf_payload: the robot SDF as a checkpoint stores it (instead of `robot_sdf`).
     """

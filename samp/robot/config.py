@@ -24,7 +24,7 @@ class GripperConfig:
 
 @dataclass
 class PointsConfig:
-    """Robot points P on shells around the moving links (DESIGN section 4)."""
+    """Robot points P on shells around the moving links (docs/design.md section 4)."""
 
     count: int = 1024
     offsets: list[float] = field(default_factory=lambda: [0.001, 0.03, 0.06])

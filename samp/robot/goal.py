@@ -1,4 +1,4 @@
-"""How far an arm's end effector is from a goal pose: the reach test of DESIGN section 4, shared by the
+"""How far an arm's end effector is from a goal pose: the reach test of docs/design.md section 4, shared by the
 evaluation (`samp.eval.checks`) and a policy's own `plan` (`samp.policy.plan`)."""
 
 from __future__ import annotations

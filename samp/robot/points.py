@@ -1,4 +1,4 @@
-"""Robot points P: samples on shells around the moving links (DESIGN section 4).
+"""Robot points P: samples on shells around the moving links (docs/design.md section 4).
 
 For each shell offset d, surface points are drawn area-proportionally, pushed out along the face
 normal by d and jittered tangentially by up to `jitter * d` (as the paper's released code does). Each

@@ -1,4 +1,4 @@
-"""The unified robot SDF network (DESIGN section 4): one hash grid and one MLP for all links.
+"""The unified robot SDF network (docs/design.md section 4): one hash grid and one MLP for all links.
 
 Every link SDF network in this package has the same interface, so the whole-robot query
 (`samp.robot_sdf.whole_robot.RobotSDF`) and the evaluation treat the method and its baselines alike:

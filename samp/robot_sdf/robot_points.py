@@ -1,4 +1,4 @@
-"""The robot SDF at the robot's own points, T_q(P), as a policy step needs it (DESIGN section 4).
+"""The robot SDF at the robot's own points, T_q(P), as a policy step needs it (docs/design.md section 4).
 
 A robot point is fixed in its own link's frame, so how far it is from a link depends only on the joints
 between the two links. `SelfDistances` sorts every (point, link) pair by that count once:

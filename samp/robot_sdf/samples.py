@@ -1,5 +1,5 @@
 """Training samples of the robot SDF: per link, points in the link's normalised box with exact signed
-distances, stored as a versioned dataset (DESIGN section 5).
+distances, stored as a versioned dataset (docs/design.md section 5).
 
 Each link's box is a cube around its collision mesh: centre c = the centre of the mesh's bounding box,
 half side s = largest half extent + `padding` metres. A link-frame point p maps to u = (p - c) / s in

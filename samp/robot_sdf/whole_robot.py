@@ -1,4 +1,4 @@
-"""`RobotSDF`: the signed distance of a posed robot from a per-link network (DESIGN section 4).
+"""`RobotSDF`: the signed distance of a posed robot from a per-link network (docs/design.md section 4).
 
 For a base-frame point p and configuration q, link i sees u_i = (T_i(q)^-1 p - c_i) / s_i, its point in
 the link's normalised box. Its distance is

@@ -1,4 +1,4 @@
-"""Run folders (`runs/<experiment>/<timestamp>/`, DESIGN section 6), their records and lineage; the
+"""Run folders (`runs/<experiment>/<timestamp>/`, docs/design.md section 6), their records and lineage; the
 registry, tables, plots and sweeps over them live in the submodules (`python -m samp.runs`)."""
 
 from samp.runs.folder import (CHECKPOINTS_DIR, CONFIG_DIR, LAST_CHECKPOINT, METRICS_CSV, RUN_JSON, STATUSES, RunFolder,

@@ -1,4 +1,4 @@
-"""One run's folder and its `run.json` record (DESIGN section 6).
+"""One run's folder and its `run.json` record (docs/design.md section 6).
 
 `runs/<experiment>/<timestamp>/` holds `.hydra/config.yaml` (the resolved config) and
 `.hydra/overrides.yaml`, `run.json`, `metrics.csv` (written by the CSV logger), `checkpoints/` and

@@ -1,4 +1,4 @@
-"""A run's lineage: which data, which robot SDF, which code, which settings (DESIGN section 6).
+"""A run's lineage: which data, which robot SDF, which code, which settings (docs/design.md section 6).
 
 `run.json` holds it in full (written by `RunFolder.record` and `samp.train`); `lineage_tags` flattens the
 parts that identify a run into string tags for trackers such as MLflow and W&B, and `flatten` turns a

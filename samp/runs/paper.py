@@ -1,5 +1,5 @@
 """The paper's Table I (motion planning) and Table II (anchor size) from whatever runs exist, on the
-standing benchmark of unseen scenes (DESIGN section 4, "Splits and problems").
+standing benchmark of unseen scenes (docs/design.md section 4, "Splits and problems").
 
 Which run fills which row is data (`TABLE_I`, `TABLE_II`): a row names an experiment (conf/experiment/),
 and its newest completed run with an evaluation (`<run>/eval/metrics.json`, written after training or by

@@ -1,5 +1,5 @@
 """The evaluation protocols a run's numbers come from, as the registry, tables, plots and paper tables
-read them (DESIGN section 4, "Splits and problems" and "Metrics").
+read them (docs/design.md section 4, "Splits and problems" and "Metrics").
 
 Protocol 2 (`<run>/eval/metrics.json` says `"protocol": 2`): the planner, the expert and the straight
 line per group of problems, `metrics.json` {"groups": {GROUP: {"source", "problems"}}, "metrics": {GROUP:

@@ -18,7 +18,7 @@ from samp.paths import resolve_asset
 
 __all__ = ["DEFAULT_BOUNDS", "Box", "Cylinder", "MeshObstacle", "Obstacle", "Pose", "Scene", "Sphere", "check_bounds"]
 
-# DESIGN section 4: x, y in [-1, 1], z in [0.05, 1.25] m, as rows (min, max).
+# docs/design.md section 4: x, y in [-1, 1], z in [0.05, 1.25] m, as rows (min, max).
 DEFAULT_BOUNDS = ((-1.0, -1.0, 0.05), (1.0, 1.0, 1.25))
 
 

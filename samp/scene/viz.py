@@ -1,7 +1,7 @@
 """Drawing a `Scene` and its anchor grid into a Rerun recording: obstacle meshes, SDF slices, anchors.
 
 Grids are (n_e, n_e, n_e) signed distances indexed (x, y, z) over inclusive linspaces of the bounds
-(DESIGN section 4, `samp.scene.grid`). Distances are coloured with one diverging colormap, symmetric
+(docs/design.md section 4, `samp.scene.grid`). Distances are coloured with one diverging colormap, symmetric
 about 0: red inside obstacles, white on their surfaces, blue outside.
 """
 

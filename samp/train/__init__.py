@@ -2,7 +2,7 @@
 checks a config (config.py), builds what is missing (prerequisites.py), fits one system, evaluates it in
 memory (after_fit.py) and records the run. `sweep.py` runs the recipe once per sweep member;
 `robot_sdf_compare.py` trains and compares the robot SDF methods (Table III). Nothing below this package
-imports it (ARCHITECTURE.md)."""
+imports it (docs/architecture.md)."""
 
 from samp.train.cli import main
 from samp.train.config import compose_train_config

@@ -1,5 +1,5 @@
 """The training config: compose conf/train.yaml with overrides and check it strictly (unknown top-level
-keys and unknown `_target_` arguments are errors that name the valid keys, DESIGN section 7)."""
+keys and unknown `_target_` arguments are errors that name the valid keys, docs/design.md section 7)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ __all__ = ["TrainSchema", "compose_train_config"]
 PICK_EXPERIMENT = "pick an experiment with experiment=NAME (`python -m samp.train --help` lists them)"
 HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
 # Ranges of arguments by name, for every `_target_` that takes them: checked with the types when the config
-# is composed, before any run folder or prerequisite (issue 21). (low, high), inclusive; None: unbounded.
+# is composed, before any run folder or prerequisite. (low, high), inclusive; None: unbounded.
 RANGES = {"n_e": (2, None), "batch_size": (1, None), "num_workers": (0, None), "max_steps": (-1, None),
           "max_epochs": (-1, None), "steps_per_epoch": (1, None), "val_samples": (0, None), "noise": (0, None),
           "scenes_per_batch": (0, None), "lr": (0, None), "weight_decay": (0, None)}
@@ -164,7 +164,7 @@ def _example(types: tuple[type, ...]) -> str:
 
 def compose_train_config(overrides: list[str]):
     """The composed config, checked strictly: unknown top-level keys and unknown `_target_` arguments
-    are errors that name the valid keys (DESIGN section 7)."""
+    are errors that name the valid keys (docs/design.md section 7)."""
     from omegaconf import OmegaConf
     from omegaconf.errors import ConfigKeyError, ValidationError
 

@@ -1,4 +1,4 @@
-"""Every read checks integrity (DESIGN section 7; issue 21): a flipped byte in a scene file, an edited
+"""Every read checks integrity (docs/design.md section 7; issue 21): a flipped byte in a scene file, an edited
 manifest (counts, splits, a per-scene count, a file entry outside the folder) and a dataset name that
 would leave the datasets root are refused by `open_dataset` exactly when `verify` refuses them, with the
 file named and what to do."""

@@ -1,4 +1,4 @@
-"""Checks and metrics on synthetic trajectories with known answers (DESIGN section 4)."""
+"""Checks and metrics on synthetic trajectories with known answers (docs/design.md section 4)."""
 
 from __future__ import annotations
 

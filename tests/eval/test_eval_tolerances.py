@@ -1,4 +1,4 @@
-"""The evaluation's tolerances at their boundaries (DESIGN section 4): position 2 cm and orientation 15 deg
+"""The evaluation's tolerances at their boundaries (docs/design.md section 4): position 2 cm and orientation 15 deg
 (just inside and just outside each), custom tolerances, and collision sub-steps that find a thin obstacle
 no waypoint touches. The misses are made by hand: turning the base joint by delta moves the end effector
 on a circle of radius r by the chord 2 r sin(delta / 2) and turns it by delta; turning the flange joint

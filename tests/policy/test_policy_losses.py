@@ -1,4 +1,4 @@
-"""The losses of DESIGN section 4 against hand-computed values and the exact scene SDF."""
+"""The losses of docs/design.md section 4 against hand-computed values and the exact scene SDF."""
 
 from __future__ import annotations
 
@@ -78,7 +78,7 @@ def test_collision_loss_gradient_pushes_points_out():
 @pytest.mark.parametrize("margin", ["fixed", "demo"])
 def test_collision_loss_differentiated_at_active_points_equals_the_dense_hinge(margin):
     """`collision_loss` reads the grid with a graph only where the hinge acts; the oracle is the dense
-    formula of DESIGN section 4 (trilinear at every point, hinge, per-point weights, mean). Two scenes, points
+    formula of docs/design.md section 4 (trilinear at every point, hinge, per-point weights, mean). Two scenes, points
     near and far from their obstacles: the loss and the gradients at the points must be equal bit for bit
     (each point's trilinear value does not depend on which others are sampled with it)."""
     from samp.policy.network import sample_by_scene

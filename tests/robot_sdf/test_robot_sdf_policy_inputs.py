@@ -52,7 +52,7 @@ def test_the_policy_reads_robot_sdf_values_near_the_shell_offsets(panda, system)
 
 
 def test_the_collision_loss_weighs_points_by_their_true_robot_distance(panda, system):
-    """L_coll of the system's own training step against the DESIGN formula with exact robot distances
+    """L_coll of the system's own training step against docs/design.md's formula with exact robot distances
     (trimesh at the predicted posed points) and the grid's trilinear environment SDF: equal within 1 %
     (measured: 4.4215e-4 exact vs 4.4256e-4, 0.09 % apart). Catches weights of the wrong sign or
     temperature (the weights span exp(0.09) = 1.09 over the margin), read at other points, or a robot SDF
@@ -81,4 +81,5 @@ def test_the_collision_loss_weighs_points_by_their_true_robot_distance(panda, sy
     cfg = system.loss_cfg
     want = float((torch.exp(-(exact - cfg.d_target) / cfg.tau) * torch.relu(cfg.d_margin - env)).mean())
     assert want > 1e-4, f"the wall must be within d_margin of some robot points (L_coll = {want})"
-    assert got == pytest.approx(want, rel=0.01), f"L_coll: DESIGN formula with exact distances {want:.6f}, got {got:.6f}"
+    assert got == pytest.approx(want, rel=0.01), \
+        f"L_coll: docs/design.md formula with exact distances {want:.6f}, got {got:.6f}"

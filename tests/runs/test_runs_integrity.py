@@ -1,5 +1,5 @@
 """Checkpoints and artifacts carry their sha256 in run.json and are checked on load; nothing a user points
-at runs code when loaded (DESIGN section 7; issue 21): a flipped byte in a checkpoint or an artifact, a
+at runs code when loaded (docs/design.md section 7; issue 21): a flipped byte in a checkpoint or an artifact, a
 truncated checkpoint, and a crafted checkpoint whose unpickling would write a marker file, through the
 Python API and through `samp.train resume=...`."""
 

@@ -10,7 +10,8 @@ from samp.paths import conf_dir
 from samp.policy.losses import LossConfig
 from samp.train import compose_train_config
 
-# The paper's values (Section III-C and its hyperparameter table; DESIGN section 4), written out here as the oracle.
+# The paper's values (Section III-C and its hyperparameter table; docs/design.md section 4), written out here as
+# the oracle.
 PAPER = {"match": 1.0, "collision": 20.0, "config": 1.0, "d_margin": 0.09, "d_target": 0.015, "tau": 1.0,
          "margin": "fixed"}
 ABLATIONS = {"no_match": ("match", 0.0), "no_collision": ("collision", 0.0), "no_config": ("config", 0.0),

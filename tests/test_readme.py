@@ -137,7 +137,7 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.data merge dataset=paper",
      Run("python -m samp.data merge dataset=smoke dataset.seed=5 dataset.name=shards", prints=["already merged into"])),
     ("python -m samp.data.shards -m +dataset=paper num_shards=40 'shard=range(0,40)' workers=8 "
-     "hydra/launcher=shards_slurm hydra.launcher.partition=NAME", Skip(SLURM + " (composed by tests/data)")),
+     "hydra/launcher=shards_slurm hydra.launcher.partition=NAME", Skip(SLURM + " (its job path runs through shards_submitit_local, below)")),
     # The demo: dataset found, the small robot SDF built, the policy trained and evaluated
     ("python -m samp.train experiment=quickstart",
      Run(f"python -m samp.train experiment=quickstart {POLICY} {TINY_SDF}",
@@ -331,6 +331,20 @@ STEPS: list[tuple[str, object]] = [
     # The step's options on the demo's run (each a further evaluation, eval-N/)
     ("python -m samp.eval run=RUN robot_sdf_pairs=all", Run(f"python -m samp.eval run={{run}} robot_sdf_pairs=all {EVAL}")),
     ("python -m samp.eval run=RUN compiled=false", Run(f"python -m samp.eval run={{run}} compiled=false {EVAL}")),
+    # Scale-out: DDP on CPUs, SLURM's job path on one machine, the paper-scale recipe and the GPU check
+    ("python -m samp.train experiment=quickstart trainer=ddp trainer.accelerator=cpu trainer.devices=2",
+     RunElsewhere("train/test_ddp.py", 'DDP = ["trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2"]')),
+    ("python -m samp.train -m sweep=anchor_size hydra/launcher=runs_submitit_local",
+     RunElsewhere("runs/test_runs_submitit.py", '"hydra/launcher=runs_submitit_local"')),
+    ("python -m samp.data.shards -m +dataset=standard num_shards=4 'shard=range(0,4)' hydra/launcher=shards_submitit_local",
+     RunElsewhere("data/test_data_shards_submitit.py", '"hydra/launcher=shards_submitit_local"')),
+    ("python -m samp.train experiment=robot_sdf_panda_paper trainer=gpu",
+     Compose("experiment=robot_sdf_panda_paper trainer=gpu", GPU)),
+    ("python -m samp.train experiment=samp_paper trainer=gpu", Compose("experiment=samp_paper trainer=gpu", GPU)),
+    ("python -m samp.train experiment=samp_paper_ours trainer=gpu", Compose("experiment=samp_paper_ours trainer=gpu", GPU)),
+    ("python tools/bench.py paper", RunElsewhere("tools/test_bench_cli.py", '"paper": ["--steps", "1"')),
+    ("bash tools/gpu_check.sh runs/gpu_check",
+     Skip("needs a GPU; tests/tools/test_gpu_check.py checks that it parses and refuses without one")),
     ("python tools/bench.py -h", Run("python {repo}/tools/bench.py -h", prints=["robot", "policy"])),
     ("python tools/mutants.py --list", Run("python {repo}/tools/mutants.py --list")),
     ("pip install -e '.[mlflow]'", Skip("installs packages")),

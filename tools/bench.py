@@ -26,6 +26,10 @@ and writes flat JSON: {"suite": ..., "metrics": {...}, "machine": {...}}. Suites
     baselines  Table I's timing on --baseline-problems problems: per-step inference (B = 1) and solution time
             of SAMP, MPiNet, MPNet (the runs in --runs; untrained default-size networks for step times
             otherwise) and the OMPL expert, expert_raw and ompl_sampling rows, as ratios to SAMP
+    paper   a dry run of the paper-scale recipes (--experiments, default samp_paper samp_paper_ours): their
+            composed settings, a training step measured here at n_e = 160 and B = 50 (--steps), the run's
+            expected wall time from it beside the paper's own GPU figure, the step's memory, and the disk of
+            the `paper` dataset, scaled from small datasets generated here
 """
 
 # A dispatcher: each suite is a module of bench_suites/ (add_arguments, run); bench_suites/common.py holds the

@@ -10,7 +10,9 @@ training data (`samp.data.mcap_io`). Scene files collect in a work folder keyed 
     shared file system they write side by side; otherwise copy their scene files together);
   * a killed run loses only the scenes that were being planned: a rerun skips every finished file;
   * `merge` checks that every scene of the spec is there and turns the folder into a dataset
-    (`samp.data.registry.finalize_dataset`), after which the work folder is removed.
+    (`samp.data.registry.finalize_dataset`), after which the work folder is removed. One merge at a time
+    per work folder: a lock file that shared file systems honour (`samp.data.merging.merge_lock`); a merge
+    killed at any point is finished by the next (`_merge_locked`).
 
 Wall-clock times go to the manifest, not into the MCAP files, so the data files, and with them the
 dataset id, depend only on the spec and seed (as long as no problem hits the planner's time limit, whose
@@ -34,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from samp.data.lifecycle import die_with_parent, drain, end_workers, exit_without_teardown, reproducible_mkl
-from samp.data.merging import EVAL_PREFIX, build_manifest, link_or_copy, merge_lock
+from samp.data.merging import EVAL_PREFIX, MergeLockTimeout, build_manifest, link_or_copy, merge_lock
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
 
@@ -52,7 +54,8 @@ class GenerationError(ValueError):
 
 
 class MergeBusy(GenerationError):
-    """Another process holds the merge lock of this work folder (kept for callers; `merge` now waits)."""
+    """Another process held the merge lock of this work folder for longer than `merge` waits
+    (`samp.data.merging.WAIT_TIMEOUT_S`); the message names it."""
 
 
 class GenerationInterrupted(KeyboardInterrupt):
@@ -337,12 +340,16 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
     root = Path(root) if root else datasets_root()
     work = work_dir(spec, root)
     jobs = spec.scene_jobs()
+    _remove_trash(work.parent)
     if not work.is_dir():  # merged already (by a shard finishing at the same time), or never generated
         return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)  # the latter names what is missing
-    with merge_lock(work, spec.name):
-        if not work.is_dir():  # the process we waited for merged it
-            return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)
-        return _merge_locked(spec, root, work, jobs)
+    try:
+        with merge_lock(work, spec.name):
+            if not work.is_dir():  # the process we waited for merged it
+                return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)
+            return _merge_locked(spec, root, work, jobs)
+    except MergeLockTimeout as err:
+        raise MergeBusy(str(err)) from None
 
 
 def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
@@ -353,7 +360,17 @@ def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
     return done
 
 
+MERGING = ".merging-"  # the dataset being assembled, in the work folder: <work>/.merging-<pid>-<ns>/
+TRASH = ".removed-"  # a merged work folder being removed: <root>/<name>/.work/.removed-<hash16>-<pid>-<ns>/
+
+
 def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob]) -> Path:
+    """Under the merge lock (or with no work folder, to name what is missing): assemble the dataset in a
+    folder inside the work folder and publish it by one rename (`finalize_dataset`), then remove the work
+    folder by renaming it aside first. A merge killed at any point leaves, besides a stale lock: a partial
+    `.merging-*` folder (removed here by the next merge, which starts again), or a published dataset and a
+    whole work folder (the next merge finds the same id and returns it), or a `.removed-*` folder (removed
+    by the next `merge` of that name)."""
     from samp.provenance import code_version, package_versions
 
     missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
@@ -362,8 +379,10 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
                               f"yet (indices {missing[:20]}{' ...' if len(missing) > 20 else ''}) in {work}; run "
                               f"`python -m samp.data generate +dataset={spec.name}` (or the missing shards) first")
     sidecars = [json.loads((work / (j.file + SIDECAR)).read_text()) for j in jobs]
-    tmp = root / spec.name / f".tmp-{os.getpid()}-{time.time_ns()}"
-    tmp.mkdir(parents=True)
+    for left in work.glob(MERGING + "*"):  # of a killed merge: its lock was stale, so nothing else uses it
+        shutil.rmtree(left, ignore_errors=True)
+    tmp = work / f"{MERGING}{os.getpid()}-{time.time_ns()}"
+    tmp.mkdir()
     try:
         for j in jobs:
             link_or_copy(work / j.file, tmp / j.file)
@@ -375,11 +394,28 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    shutil.rmtree(work, ignore_errors=True)
-    work_parent = work.parent
-    if work_parent.is_dir() and not any(work_parent.iterdir()):
-        work_parent.rmdir()
+    # Aside first, in one rename: a merge killed while removing leaves no work folder with scenes missing
+    # (which the next merge would take for unfinished shards), only a `.removed-*` folder.
+    trash = work.parent / f"{TRASH}{work.name}-{os.getpid()}-{time.time_ns()}"
+    try:
+        work.rename(trash)  # the merge lock goes with it: waiters find the work folder gone, and the dataset
+    except OSError:
+        shutil.rmtree(work, ignore_errors=True)
+    _remove_trash(work.parent)
     return dest
+
+
+def _remove_trash(work_parent: Path) -> None:
+    """Remove the `.removed-*` folders of `<root>/<name>/.work/` (merged work folders), and that folder when
+    it is left empty."""
+    if not work_parent.is_dir():
+        return
+    for trash in work_parent.glob(TRASH + "*"):
+        shutil.rmtree(trash, ignore_errors=True)
+    try:
+        work_parent.rmdir()  # only when empty
+    except OSError:
+        pass
 
 
 def _asset_hash(robot: str) -> str:

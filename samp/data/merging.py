@@ -1,44 +1,257 @@
 """What merging scene files into a dataset needs besides the scenes themselves: the merge lock, moving
-files into the new dataset, and the manifest's summary of the scenes' sidecars (`samp.data.generation`)."""
+files into the new dataset, and the manifest's summary of the scenes' sidecars (`samp.data.generation`).
+
+The merge lock (`merge_lock`) is a lock file, `<work folder>/merge.lock`, that only one process can create:
+a file written in full under a unique name and hard-linked to `merge.lock` (`os.link` fails when the name
+exists; where a file system has no hard links, `os.open(O_CREAT | O_EXCL)`). It records its holder's host,
+process id and start time, and works wherever the work folder is shared (NFS, Lustre mounted without flock),
+which `fcntl.flock` does not. A lock outlives a holder that dies without releasing it (SIGKILL, a lost node),
+so a waiting merge judges the holder and takes a stale lock over with a one-line warning:
+  * a holder on this host is alive while its process id runs a process started no later than the lock;
+    once that process is gone (or a zombie, or the id belongs to a younger process) the lock is stale;
+  * a holder on another host cannot be asked: it touches the lock file every `HEARTBEAT_S` (30 s), and its
+    lock is stale once the file's time is more than `STALE_AFTER_S` (10 minutes) old, by the waiter's clock
+    (the hosts' clocks must agree within minutes, as NTP keeps them). A lock file that cannot be read (a
+    holder killed while writing it through the O_EXCL fallback) is judged by its age the same way.
+A live holder is waited for (one line says who holds it) for at most `WAIT_TIMEOUT_S` (6 h), after which
+`MergeLockTimeout` names the holder. Two waiters never both take one stale lock over: the take-over itself
+is done under a second lock file (`merge.lock.break`), after checking that the stale lock is unchanged.
+"""
 
 from __future__ import annotations
 
+import errno
+import json
 import os
+import platform
+import re
 import shutil
+import sys
+import threading
+import time
+import uuid
 from contextlib import contextmanager
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
 from samp.names import SPLIT_ALIASES, SPLITS
 
-__all__ = ["EVAL_PREFIX", "build_manifest", "link_or_copy", "merge_lock"]
+__all__ = ["EVAL_PREFIX", "HEARTBEAT_S", "STALE_AFTER_S", "WAIT_TIMEOUT_S", "MergeLockTimeout", "build_manifest",
+           "link_or_copy", "merge_lock"]
 
 EVAL_PREFIX = "eval_"  # the evaluation problems' times in a sidecar: eval_planning_time, ...
 
+LOCK_NAME = "merge.lock"
+HEARTBEAT_S = 30.0  # a holder touches its lock file this often
+STALE_AFTER_S = 600.0  # a lock of another host (or unreadable) whose file is older than this is stale
+WAIT_TIMEOUT_S = 6 * 3600.0  # how long a merge waits for a live holder before it gives up
+BREAK_STALE_S = 60.0  # a take-over lock (merge.lock.break) older than this was left by a killed take-over
+POLL_S = 0.5
+
+
+class MergeLockTimeout(TimeoutError):
+    """A merge waited `timeout` seconds for a live holder of the merge lock; the message names the holder."""
+
 
 @contextmanager
-def merge_lock(work: Path, name: str):
-    """An exclusive lock on `work/merge.lock` (fcntl.flock), held for the block. The kernel releases it when
-    its holder dies, however it dies, so a lock file left by a killed merge is simply taken over; a live
-    holder is waited for."""
-    import fcntl
-    import platform
-
-    lock = work / "merge.lock"
-    fd = os.open(lock, os.O_CREAT | os.O_RDWR)
+def merge_lock(work: Path, name: str, timeout: float = WAIT_TIMEOUT_S):
+    """An exclusive lock on the work folder `work` (module docstring), held for the block. A live holder is
+    waited for, a stale one taken over. When `work` disappears while waiting (the holder merged it and
+    removed it), the block runs without a lock: the caller finds the dataset made."""
+    lock = work / LOCK_NAME
+    content = _acquire(lock, name, timeout)
+    if content is None:
+        yield
+        return
+    stop = threading.Event()
+    beat = threading.Thread(target=_heartbeat, args=(lock, content, stop), name="merge-lock-heartbeat", daemon=True)
+    beat.start()
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            owner = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
-            print(f"{name}: {owner} is merging {work}; waiting for it to finish", flush=True)
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"process {os.getpid()} on {platform.node()}\n".encode(), 0)
         yield
     finally:
-        os.close(fd)  # releases the lock
+        stop.set()
+        beat.join()
+        try:
+            if lock.read_bytes() == content:  # still ours (the merge may have moved the work folder away)
+                lock.unlink()
+        except FileNotFoundError:
+            pass
+
+
+_HOST = platform.node()
+_LEGACY = re.compile(rb"process (\d+) on (\S+)")  # what the flock lock of earlier versions wrote
+
+
+def _lock_content() -> bytes:
+    now = time.time()
+    return (json.dumps({"host": _HOST, "pid": os.getpid(), "started": now,
+                        "started_utc": datetime.fromtimestamp(now, timezone.utc).isoformat(timespec="seconds"),
+                        "token": uuid.uuid4().hex}) + "\n").encode()
+
+
+def _acquire(lock: Path, name: str, timeout: float) -> bytes | None:
+    """The content of `lock` once it is ours; None when its folder is gone (the holder we waited for merged)."""
+    deadline = time.monotonic() + timeout
+    announced = None
+    while True:
+        if not lock.parent.is_dir():
+            return None
+        content = _lock_content()  # its start time: now
+        try:
+            if _create(lock, content):
+                return content
+        except FileNotFoundError:  # the folder went away meanwhile
+            continue
+        seen = _read(lock)
+        if seen is None:  # released meanwhile
+            continue
+        raw, holder, age = seen
+        reason = _stale(holder, age)
+        if reason is not None:
+            _take_over(lock, raw, content, f"{name}: taking over the merge lock {lock} of {_describe(holder)}: {reason}")
+            continue
+        if raw != announced:
+            print(f"{name}: {_describe(holder)} is merging {lock.parent}; waiting for it to finish", flush=True)
+            announced = raw
+        if time.monotonic() > deadline:
+            raise MergeLockTimeout(
+                f"{name}: waited {timeout:.0f} s for the merge lock {lock}; {_describe(holder)} still holds it "
+                f"(its lock file was refreshed {age:.0f} s ago). If that process is gone, delete {lock} and merge again")
+        time.sleep(POLL_S)
+
+
+def _create(lock: Path, content: bytes) -> bool:
+    """Create `lock` holding `content`, atomically: True when this call made it, False when it exists."""
+    tmp = lock.with_name(f".{lock.name}.{re.sub(r'[^A-Za-z0-9.-]', '_', _HOST)}.{os.getpid()}.{uuid.uuid4().hex[:12]}")
+    tmp.write_bytes(content)
+    try:
+        try:
+            os.link(tmp, lock)
+            return True
+        except OSError as err:
+            if os.stat(tmp).st_nlink == 2:  # NFS: the link was made though its reply was lost
+                return True
+            if isinstance(err, FileExistsError):
+                return False
+            if err.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.ENOSYS, errno.EMLINK):
+                raise
+        try:  # a file system without hard links: exclusive creation (NFSv3 and later honour O_EXCL)
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            return False
+        try:
+            os.write(fd, content)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        return True
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _read(lock: Path) -> tuple[bytes, dict, float] | None:
+    """(the lock file's bytes, its holder, seconds since it was last written or touched), or None without one."""
+    try:
+        raw = lock.read_bytes()
+        age = time.time() - lock.stat().st_mtime
+    except FileNotFoundError:
+        return None
+    try:
+        holder = json.loads(raw)
+        holder = holder if isinstance(holder, dict) else {}
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        legacy = _LEGACY.search(raw)
+        holder = {"pid": int(legacy[1]), "host": legacy[2].decode(errors="replace")} if legacy else {}
+    return raw, holder, age
+
+
+def _describe(holder: dict) -> str:
+    if not isinstance(holder.get("pid"), int):
+        return "an unknown process (an unreadable lock file)"
+    since = f" since {holder['started_utc']}" if holder.get("started_utc") else ""
+    return f"process {holder['pid']} on {holder.get('host') or 'an unknown host'}{since}"
+
+
+def _stale(holder: dict, age: float) -> str | None:
+    """Why the lock of `holder` (its file `age` seconds old) is stale, or None while its holder may be alive."""
+    pid = holder.get("pid")
+    if holder.get("host") == _HOST and isinstance(pid, int):
+        started = holder.get("started")
+        return _gone(pid, started if isinstance(started, (int, float)) else None)
+    if age > STALE_AFTER_S:
+        return f"its lock file was last refreshed {age:.0f} s ago (stale after {STALE_AFTER_S:.0f} s)"
+    return None
+
+
+def _gone(pid: int, started: float | None) -> str | None:
+    """Why process `pid` of this host is not the lock's holder any more, or None while it may be."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return "that process is gone"
+    except PermissionError:  # alive, another user's
+        pass
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:  # gone meanwhile, or no /proc: taken as alive until the next look
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()
+    if fields[0] in ("Z", "X"):
+        return "that process is gone (a zombie)"
+    if started is not None:
+        born = _boot_time() + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+        if born > started + 2.0:  # the clock-tick start time of /proc is good to a second
+            return "that process is gone (its process id now belongs to a younger process)"
+    return None
+
+
+_BOOT: list[float] = []
+
+
+def _boot_time() -> float:
+    if not _BOOT:
+        lines = Path("/proc/stat").read_text().splitlines()
+        _BOOT.append(float(next(line.split()[1] for line in lines if line.startswith("btime "))))
+    return _BOOT[0]
+
+
+def _take_over(lock: Path, stale: bytes, content: bytes, warning: str) -> None:
+    """Remove the stale lock file `lock` (holding `stale`) under the take-over lock, so that of several
+    waiters exactly one removes it, and only while it is the file judged stale."""
+    breaker = lock.with_name(lock.name + ".break")
+    try:
+        made = _create(breaker, content)
+    except FileNotFoundError:
+        return
+    if not made:  # another waiter is taking over, or one was killed doing so (it takes milliseconds)
+        try:
+            if time.time() - breaker.stat().st_mtime > BREAK_STALE_S:
+                breaker.unlink()
+        except FileNotFoundError:
+            pass
+        time.sleep(POLL_S)
+        return
+    try:
+        if lock.read_bytes() == stale:
+            lock.unlink()
+            print(f"warning: {warning}", file=sys.stderr, flush=True)
+    except FileNotFoundError:
+        pass
+    finally:
+        breaker.unlink(missing_ok=True)
+
+
+def _heartbeat(lock: Path, content: bytes, stop: threading.Event) -> None:
+    """Touch the lock file every HEARTBEAT_S while it is ours: a holder on another host is alive while it does."""
+    while not stop.wait(HEARTBEAT_S):
+        try:
+            if lock.read_bytes() != content:
+                return
+            os.utime(lock)
+        except OSError:
+            return
 
 
 def link_or_copy(src: Path, dst: Path) -> None:

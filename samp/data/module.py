@@ -64,16 +64,24 @@ class StepSamples(Dataset):
 
 class _BatchIndices(Sampler):
     """Yields whole batches of indices: in order, shuffled, or shuffled within scenes and grouped so
-    that each batch holds at most `scenes_per_batch` distinct scenes. Seeded; a new order every epoch."""
+    that each batch holds at most `scenes_per_batch` distinct scenes. Seeded; a new order every epoch.
+
+    Data-parallel (`world_size` > 1): every rank builds the same global batches of `batch_size` x
+    `world_size` indices from the same seed and takes its own part of each (`tensor_split`, so the parts
+    differ in size by at most one), so the ranks draw disjoint shares of every epoch, step for step, and the
+    union of their batches at a step is the batch one process would draw with `batch_size` x `world_size`.
+    `record`: a JSONL file that gets one line per batch yielded (epoch, rank, the indices, their scenes)."""
 
     def __init__(self, scene: torch.Tensor, batch_size: int, shuffle: bool, seed: int, drop_last: bool,
-                 scenes_per_batch: int = 0):
+                 scenes_per_batch: int = 0, rank: int = 0, world_size: int = 1, record=None):
+        if not 0 <= rank < world_size:
+            raise ValueError(f"rank {rank} is not in [0, {world_size})")
         self.scene, self.n = scene, len(scene)
-        self.batch_size, self.shuffle, self.seed, self.drop_last = batch_size, shuffle, seed, drop_last
-        self.scenes_per_batch = scenes_per_batch
+        self.batch_size, self.shuffle, self.seed, self.drop_last = batch_size * world_size, shuffle, seed, drop_last
+        self.scenes_per_batch, self.rank, self.world_size, self.record = scenes_per_batch, rank, world_size, record
         self.epoch = 0
 
-    def _batches(self) -> list[torch.Tensor]:
+    def _global_batches(self) -> list[torch.Tensor]:
         g = torch.Generator().manual_seed(self.seed + self.epoch)
         if not self.shuffle:
             return list(torch.arange(self.n).split(self.batch_size))
@@ -92,13 +100,45 @@ class _BatchIndices(Sampler):
         k = self.scenes_per_batch
         return [torch.cat(chunks[i:i + k]) for i in range(0, len(chunks), k)]
 
+    def _batches(self) -> list[torch.Tensor]:
+        batches = self._global_batches()
+        if self.world_size == 1:
+            return batches
+        # every rank gets a part of every global batch; a batch too small to give each rank a sample is dropped
+        return [b.tensor_split(self.world_size)[self.rank] for b in batches if len(b) >= self.world_size]
+
+    def set_epoch(self, epoch: int) -> None:
+        """Lightning calls this before every epoch (`_set_sampler_epoch`): a resumed run draws the order of
+        the epoch it resumes in, not the first epoch's again."""
+        self.epoch = int(epoch) if self.shuffle else 0
+
     def __iter__(self):
-        batches = self._batches()
-        self.epoch += int(self.shuffle)
-        yield from batches
+        batches, epoch = self._batches(), self.epoch
+        self.epoch += int(self.shuffle)  # without a caller of set_epoch: the next epoch's order next time
+        for batch in batches:
+            if self.record is not None:
+                _append_json(self.record, {"epoch": epoch, "rank": self.rank, "world_size": self.world_size,
+                                           "indices": batch.tolist(), "scenes": self.scene[batch].tolist()})
+            yield batch
 
     def __len__(self) -> int:
         return len(self._batches())
+
+
+def _append_json(path, record: dict) -> None:
+    import json
+    from pathlib import Path
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        f.write(json.dumps(record) + "\n")
+
+
+def rank_and_world(trainer) -> tuple[int, int]:
+    """(global rank, world size) of the Trainer a data module is attached to; (0, 1) without one."""
+    if trainer is None:
+        return 0, 1
+    return int(trainer.global_rank), int(trainer.world_size)
 
 
 class TrajectoryDataModule(pl.LightningDataModule):
@@ -113,6 +153,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
         max_trajectories: use at most this many training trajectories (None: all), for quick runs.
         max_scenes: train on the demonstrations of the first this many training scenes only (None: all), for
             data-scaling studies (`conf/sweep/data_scaling.yaml`); validation is unchanged.
+        record_draws: write the indices and scenes of every training batch each rank draws to
+            `<run>/draws/rank<r>.jsonl` (to audit what data-parallel ranks trained on).
 
     After `setup`, `binding` is what a model trained on this data depends on (`DatasetBinding`). A missing
     dataset is an error here; the training recipe builds it first when asked (`build_missing.dataset`).
@@ -121,7 +163,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
     def __init__(self, dataset: str, n_e: int = 40, batch_size: int = 50, scenes_per_batch: int = 2,
                  noise: float = 0.03, val_split: str | float = "val", val_samples: int = 2000,
                  max_trajectories: int | None = None, max_scenes: int | None = None, seed: int = 0,
-                 root: str | None = None):
+                 root: str | None = None, record_draws: bool = False):
         super().__init__()
         if val_split in SPLIT_ALIASES:
             warnings.warn(f"val_split={val_split!r} is deprecated: write val_split='{SPLIT_ALIASES[val_split]}' (the "
@@ -139,6 +181,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.ref, self.n_e, self.batch_size, self.val_samples = dataset, int(n_e), int(batch_size), int(val_samples)
         self.scenes_per_batch, self.noise, self.val_split = int(scenes_per_batch), float(noise), val_split
         self.max_trajectories, self.max_scenes, self.seed, self.root = max_trajectories, max_scenes, int(seed), root
+        self.record_draws = bool(record_draws)
         self.ds = None
         self.binding: DatasetBinding | None = None
 
@@ -197,11 +240,22 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.val_set = _Subset(self.val_all, pick.sort().values)
 
     def train_dataloader(self) -> DataLoader:
+        """Each rank's part of every global batch (`_BatchIndices`): `batch_size` is per rank, so a DDP step
+        trains on `batch_size` x world size samples. The noise on q_t is drawn from a stream per rank."""
+        rank, world = rank_and_world(getattr(self, "trainer", None))
+        self.train_samples.generator.manual_seed(self.seed + 1_000_003 * rank)  # rank 0: the single-process stream
+        record = None
+        if self.record_draws:
+            from pathlib import Path
+
+            record = Path(self.trainer.default_root_dir) / "draws" / f"rank{rank}.jsonl"
         sampler = _BatchIndices(self.train_samples.scene, self.batch_size, True, self.seed, drop_last=True,
-                                scenes_per_batch=self.scenes_per_batch)
+                                scenes_per_batch=self.scenes_per_batch, rank=rank, world_size=world, record=record)
         return DataLoader(self.train_samples, sampler=sampler, batch_size=None, num_workers=0)
 
     def val_dataloader(self) -> DataLoader:
+        """The whole validation set on every rank (not split): every rank computes the same values, so the
+        metrics rank 0 logs and the checkpoint choice hold for the whole run."""
         scene = self.val_all.scene[self.val_set.indices]
         sampler = _BatchIndices(scene, self.batch_size, False, self.seed, drop_last=False)
         return DataLoader(self.val_set, sampler=sampler, batch_size=None, num_workers=0)

@@ -168,13 +168,16 @@ class PolicySystemBase(pl.LightningModule):
         losses = self._losses(batch)
         self._check_finite(losses)
         size = len(batch[BATCH_Q])
-        self.log_dict({f"{TRAIN_PREFIX}{k}": v for k, v in losses.items()}, batch_size=size)
-        self.log("loss", losses["loss"], prog_bar=True, logger=False, batch_size=size)
+        # data-parallel: every rank holds a part of the global batch, so the logged loss is the mean of the parts
+        sync = self.trainer.world_size > 1
+        self.log_dict({f"{TRAIN_PREFIX}{k}": v for k, v in losses.items()}, batch_size=size, sync_dist=sync)
+        self.log("loss", losses["loss"], prog_bar=True, logger=False, batch_size=size, sync_dist=sync)
         return losses["loss"]
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
-        losses = self._losses(batch)
-        self.log_dict({f"{VAL_PREFIX}{k}": v for k, v in losses.items()}, batch_size=len(batch[BATCH_Q]))
+        losses = self._losses(batch)  # every rank validates on the whole set: the same values everywhere
+        self.log_dict({f"{VAL_PREFIX}{k}": v for k, v in losses.items()}, batch_size=len(batch[BATCH_Q]),
+                      sync_dist=self.trainer.world_size > 1)
 
     def trainable_parameters(self):
         return self.net.parameters()

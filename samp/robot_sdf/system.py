@@ -33,9 +33,9 @@ class _RandomBatches(torch.utils.data.Dataset):
     """`length` batches, each `near` + `uniform` random rows of every link (drawn with replacement)."""
 
     def __init__(self, samples, near_rows: list[torch.Tensor], uniform_rows: list[torch.Tensor], near: int,
-                 uniform: int, length: int, seed: int):
+                 uniform: int, length: int, seed: int, record=None):
         self.samples, self.near_rows, self.uniform_rows = samples, near_rows, uniform_rows
-        self.near, self.uniform, self.length = near, uniform, length
+        self.near, self.uniform, self.length, self.record = near, uniform, length, record
         self.gen = torch.Generator().manual_seed(seed)
 
     def __len__(self) -> int:
@@ -47,6 +47,13 @@ class _RandomBatches(torch.utils.data.Dataset):
             if len(rows) and count:
                 picks.append(rows[torch.randint(len(rows), (count,), generator=self.gen)])
         rows = torch.cat(picks)
+        if self.record is not None:
+            import hashlib
+
+            from samp.data.module import _append_json
+
+            _append_json(self.record, {"index": int(index), "rows": len(rows),
+                                       "sha256": hashlib.sha256(rows.numpy().tobytes()).hexdigest()})
         s = self.samples
         return {"points": s.points[rows], "sdf": s.sdf[rows], "link": s.link[rows]}
 
@@ -57,7 +64,7 @@ class RobotSDFDataModule(pl.LightningDataModule):
 
     def __init__(self, robot: str, samples: dict | SampleConfig, near_per_step: int = 2048, uniform_per_step: int = 1024,
                  steps_per_epoch: int = 250, val_fraction: float = 0.02, val_batch: int = 65536, seed: int = 0,
-                 root: str | None = None):
+                 root: str | None = None, record_draws: bool = False):
         super().__init__()
         if not 0 < val_fraction < 1:
             raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
@@ -71,6 +78,7 @@ class RobotSDFDataModule(pl.LightningDataModule):
         self.near_per_step, self.uniform_per_step = near_per_step, uniform_per_step
         self.steps_per_epoch, self.val_fraction, self.val_batch, self.seed = steps_per_epoch, val_fraction, val_batch, seed
         self.root = Path(root) if root else None
+        self.record_draws = bool(record_draws)  # a line per training batch in <run>/draws/rank<r>.jsonl
         self.samples = None
         self.folder: Path | None = None
 
@@ -110,8 +118,14 @@ class RobotSDFDataModule(pl.LightningDataModule):
         return SimpleNamespace(name=s.robot, asset_hash=s.robot_asset_hash, link_names=list(s.link_names))
 
     def train_dataloader(self):
+        """Random batches from a stream of this rank's own: under DDP every rank draws its own
+        `near_per_step` + `uniform_per_step` rows per link and step (rank 0 the single-process stream)."""
+        from samp.data.module import rank_and_world
+
+        rank, _ = rank_and_world(getattr(self, "trainer", None))
+        record = Path(self.trainer.default_root_dir) / "draws" / f"rank{rank}.jsonl" if self.record_draws else None
         data = _RandomBatches(self.samples, self.near_rows, self.uniform_rows, self.near_per_step,
-                              self.uniform_per_step, self.steps_per_epoch, self.seed)
+                              self.uniform_per_step, self.steps_per_epoch, self.seed + 1_000_003 * rank, record)
         return torch.utils.data.DataLoader(data, batch_size=None, shuffle=False, num_workers=0)
 
     def val_dataloader(self):
@@ -157,6 +171,7 @@ class RobotSDFSystem(pl.LightningModule):
         self.robot_asset_hash: str | None = None
         self.train_time_s: float | None = None
         self._t0: float | None = None
+        self._elapsed = 0.0
         self._val_errors: list[torch.Tensor] = []
 
     # ----------------------------------------------------------------- set-up
@@ -183,12 +198,21 @@ class RobotSDFSystem(pl.LightningModule):
         trainer = self._trainer
         steps = trainer.max_steps if trainer is not None and trainer.max_steps and trainer.max_steps > 0 else None
         by_steps = self.global_step / steps if steps else 0.0
-        by_time = (time.perf_counter() - self._t0) / self.time_limit_s if self.time_limit_s and self._t0 else 0.0
+        by_time = self._elapsed / self.time_limit_s if self.time_limit_s and self._t0 else 0.0
         return min(1.0, max(by_steps, by_time))
 
     # ----------------------------------------------------------------- training
     def on_train_start(self) -> None:
-        self._t0 = time.perf_counter()
+        self._t0, self._elapsed = time.perf_counter(), 0.0
+
+    def _sync_elapsed(self) -> None:
+        """Seconds since training started, the same on every data-parallel rank (the slowest clock): the
+        learning rate and the time limit follow it, so every rank steps with the same rate and stops at the
+        same step (ranks that disagreed would diverge, or wait for each other forever)."""
+        elapsed = time.perf_counter() - self._t0
+        if self.trainer.world_size > 1:
+            elapsed = float(self.trainer.strategy.reduce(torch.tensor(elapsed, dtype=torch.float64), reduce_op="max"))
+        self._elapsed = elapsed
 
     def on_train_end(self) -> None:
         if self._t0 is not None:
@@ -205,10 +229,13 @@ class RobotSDFSystem(pl.LightningModule):
             raise FloatingPointError(f"the robot SDF loss is {loss.item()} at step {self.global_step}; training stopped. "
                                      "The last good checkpoint is in the run's checkpoints/ folder; lower the learning rate "
                                      "(system.optimizer.lr) and resume or restart")
-        self.log("train/loss", loss, prog_bar=True)
-        self.log("train/mae_mm", self._errors_mm(pred.detach(), batch).abs().mean())
-        if self.time_limit_s and self._t0 and time.perf_counter() - self._t0 >= self.time_limit_s:
-            self.trainer.should_stop = True
+        sync = self.trainer.world_size > 1  # every rank holds a part of the global batch
+        self.log("train/loss", loss, prog_bar=True, sync_dist=sync)
+        self.log("train/mae_mm", self._errors_mm(pred.detach(), batch).abs().mean(), sync_dist=sync)
+        if self.time_limit_s and self._t0:
+            self._sync_elapsed()
+            if self._elapsed >= self.time_limit_s:
+                self.trainer.should_stop = True
         return loss
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
@@ -219,8 +246,9 @@ class RobotSDFSystem(pl.LightningModule):
             return
         err = torch.cat(self._val_errors)
         self._val_errors.clear()
-        self.log("val/mae_mm", err.abs().mean(), prog_bar=True)
-        self.log("val/rmse_mm", err.square().mean().sqrt())
+        sync = self.trainer.world_size > 1  # every rank validates on the whole set: the same values everywhere
+        self.log("val/mae_mm", err.abs().mean(), prog_bar=True, sync_dist=sync)
+        self.log("val/rmse_mm", err.square().mean().sqrt(), sync_dist=sync)
 
     # ----------------------------------------------------------------- export and evaluation
     def robot_sdf(self, robot=None):

@@ -274,7 +274,9 @@ def _member(cfg) -> dict | None:
     folder = Path(hc.runtime.output_dir)
     overrides = [o for o in hc.overrides.task if override_key(o) != "sweep"]
     strategy = str((cfg.get("trainer") or {}).get("strategy", ""))
-    if "ddp" in strategy and "submitit" not in str(hc.launcher.get("_target_", "")):
+    # Only SLURM starts the ranks for Lightning: submitit's local executor (runs_submitit_local) runs one process
+    # per member, in which Lightning's local DDP launcher would start the ranks by re-running that job.
+    if "ddp" in strategy and not str(hc.launcher.get("_target_", "")).endswith(".SlurmLauncher"):
         raise ValueError(f"trainer.strategy={strategy} in a sweep needs the SLURM launcher (hydra/launcher=runs_slurm): "
                          "Lightning's local DDP launcher would run the whole sweep again in every rank")
     named = folder

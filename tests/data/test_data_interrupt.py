@@ -134,22 +134,31 @@ def scenes_done(tmp_path):
     return work
 
 
-def test_a_lock_left_by_a_killed_merge_is_taken_over(scenes_done, tmp_path):
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    (scenes_done / "merge.lock").write_text(f"process {dead.pid} on this host\n")  # what a killed merge leaves
+# A process that takes the merge lock of the work folder argv[1], says so and holds it until it is killed.
+HOLD_THE_MERGE_LOCK = ("import sys, time\nfrom pathlib import Path\nfrom samp.data.merging import merge_lock\n"
+                       "with merge_lock(Path(sys.argv[1]), 'halted'):\n    print('held', flush=True)\n    time.sleep(600)\n")
+
+
+def _lock_holder(work: Path) -> subprocess.Popen:
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_THE_MERGE_LOCK, str(work)], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "held"
+    return holder
+
+
+def test_a_lock_left_by_a_killed_merge_is_taken_over(scenes_done, tmp_path, capfd):
+    holder = _lock_holder(scenes_done)
+    holder.kill()  # SIGKILL: its lock file stays, as a killed merge leaves it
+    holder.wait()
+    assert (scenes_done / "merge.lock").is_file()
     dest = merge(SPEC, tmp_path)
     assert (dest / "manifest.json").is_file() and not scenes_done.exists()
+    assert f"taking over the merge lock {scenes_done / 'merge.lock'} of process {holder.pid} " in capfd.readouterr().err
 
 
 def test_a_live_merge_is_waited_for_and_its_dataset_returned(scenes_done, tmp_path):
     """A process holding the lock makes `merge` wait; once it is gone the merge completes. A second merge
     of a merged spec returns the dataset instead of failing or succeeding without one."""
-    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time\n"
-                               f"fd = os.open({str(scenes_done / 'merge.lock')!r}, os.O_CREAT | os.O_RDWR)\n"
-                               "fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); time.sleep(600)"],
-                              stdout=subprocess.PIPE, text=True)
-    assert holder.stdout.readline().strip() == "held"
+    holder = _lock_holder(scenes_done)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     merging = subprocess.Popen([sys.executable, "-m", "samp.data", "merge", *OVERRIDES, f"root={tmp_path}"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

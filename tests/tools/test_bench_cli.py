@@ -19,7 +19,7 @@ BENCH = REPO / "tools" / "bench.py"
 # line takes every suite's options whichever suite runs, so each --help must list them all.
 SUITES = {"robot": "--batch", "scene": "--configs", "data": "--workers", "eval": "--expert-problems",
           "policy": "--anchors", "robot_sdf": "--override", "perception": "--camera",
-          "baselines": "--baseline-problems"}
+          "baselines": "--baseline-problems", "paper": "--steps"}
 
 
 def _help(*args: str) -> subprocess.CompletedProcess:
@@ -65,6 +65,7 @@ TINY_RUNS = {
     "robot_sdf": ["--override", "robot_sdf_samples=tiny", "trainer.max_steps=20", "--sdf-eval", "tiny"],
     "perception": ["--anchors", "8"],
     "baselines": ["--baseline-problems", "1"],
+    "paper": ["--steps", "1", "--train-n-e", "8", "--disk-max-n-e", "16"],
 }
 
 

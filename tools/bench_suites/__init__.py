@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 
 # The order the suites were defined in when bench.py was one file; their options appear in --help in this order.
-NAMES = ("robot", "scene", "data", "eval", "policy", "robot_sdf", "perception", "baselines")
+NAMES = ("robot", "scene", "data", "eval", "policy", "robot_sdf", "perception", "baselines", "paper")
 
 # name -> module (imported by name: the `eval` suite's module would shadow the builtin as a plain import).
 SUITES = {name: importlib.import_module(f"{__name__}.{name}") for name in NAMES}

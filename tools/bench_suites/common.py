@@ -59,7 +59,8 @@ def machine(device: torch.device) -> dict:
 def print_table(args: argparse.Namespace, table: list[list]) -> None:
     """The suite's table (first row: the header), columns right-aligned to their widest cell."""
     widths = [max(len(str(r[i])) for r in table) for i in range(len(table[0]))]
-    print(f"suite {args.suite} ({args.robot}, {args.device}); ratios are baseline time / samp time")
+    ratios = "; ratios are baseline time / samp time" if table[0] == HEADER else ""
+    print(f"suite {args.suite} ({args.robot}, {args.device}){ratios}")
     for r in table:
         print("  ".join(str(c).rjust(w) for c, w in zip(r, widths)))
 
@@ -75,10 +76,11 @@ def write_report(args: argparse.Namespace, metrics: dict) -> None:
         print(f"wrote {args.out}")
 
 
-def untrained_policy_system(robot, robot_name: str, robot_sdf: str = "robot_sdf_hash", model: dict | None = None,
-                            artifact: str | None = None):
-    """A PolicySystem (network `model` keys over the paper widths of `PolicyConfig`) around an untrained robot SDF of
-    the architecture conf/model/ROBOT_SDF.yaml, or the trained robot SDF `artifact` (a robot_sdf.pt)."""
+def untrained_policy_system(robot, robot_name: str, robot_sdf: str | dict = "robot_sdf_hash", model: dict | None = None,
+                            artifact: str | None = None, **system):
+    """A PolicySystem (network `model` keys over the paper widths of `PolicyConfig`, other PolicySystem arguments
+    in `system`) around an untrained robot SDF of the architecture conf/model/ROBOT_SDF.yaml (or that model node,
+    as a dict), or the trained robot SDF `artifact` (a robot_sdf.pt)."""
     from omegaconf import OmegaConf
 
     from samp.paths import conf_dir
@@ -90,14 +92,14 @@ def untrained_policy_system(robot, robot_name: str, robot_sdf: str = "robot_sdf_
     if artifact:
         payload = read_robot_sdf(artifact)
     else:
-        kwargs = {k: v for k, v in OmegaConf.to_container(OmegaConf.load(conf_dir() / "model" / f"{robot_sdf}.yaml")).items()
-                  if not k.startswith("_")}
+        node = robot_sdf if isinstance(robot_sdf, dict) else OmegaConf.load(conf_dir() / "model" / f"{robot_sdf}.yaml")
+        kwargs = {k: v for k, v in OmegaConf.to_container(OmegaConf.create(node)).items() if not k.startswith("_")}
         kwargs["num_links"] = len(robot.link_names)
         net = UnifiedHashSDF(**kwargs)
         centres, scales = link_normalisation(robot, 0.02)
         payload = {"info": describe(robot, net_spec(net, kwargs), "bench", torch.tensor(centres), torch.tensor(scales)),
                    "state_dict": net.state_dict()}
-    return PolicySystem(robot=robot_name, robot_sdf_payload=payload, model=model)
+    return PolicySystem(robot=robot_name, robot_sdf_payload=payload, model=model, **system)
 
 
 def bench_scenes() -> list:

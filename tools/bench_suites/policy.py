@@ -146,12 +146,14 @@ def _systems(args, device) -> list[tuple[str, object, int]]:
     return out
 
 
-def _time_training(system, robot, scenes: list, g: torch.Generator, device: torch.device) -> tuple[float, float]:
-    """Seconds per training step of B samples: scene-grouped (2 scenes) and random (~8 scenes) batches."""
+def train_step(system, robot, g: torch.Generator, device: torch.device, batch_size: int = B):
+    """One training step of `batch_size` random configurations (forward, losses, backward, the optimizer training
+    uses, without its scheduler) as a callable of the batch's scene indices (batch_size,); the system's bound grids.
+    Also the `paper` suite's step."""
     lo, hi = robot.joint_limits.float().T
-    q = (lo + (hi - lo) * torch.rand(B, robot.dof, generator=g)).to(device)
+    q = (lo + (hi - lo) * torch.rand(batch_size, robot.dof, generator=g)).to(device)
     batch = {"q": q, "q_next": q + 0.01, "q_goal": q.flip(0)}
-    configured = system.configure_optimizers()  # the optimizer training uses (without its scheduler)
+    configured = system.configure_optimizers()
     opt = configured["optimizer"] if isinstance(configured, dict) else configured
 
     def step(scene):
@@ -160,6 +162,12 @@ def _time_training(system, robot, scenes: list, g: torch.Generator, device: torc
         loss.backward()
         opt.step()
 
+    return step
+
+
+def _time_training(system, robot, scenes: list, g: torch.Generator, device: torch.device) -> tuple[float, float]:
+    """Seconds per training step of B samples: scene-grouped (2 scenes) and random (~8 scenes) batches."""
+    step = train_step(system, robot, g, device)
     system.train()
     grouped = torch.arange(B, device=device) * 2 // B  # 2 scenes
     plain = torch.randint(0, len(scenes), (B,), generator=g).to(device)  # ~8 scenes

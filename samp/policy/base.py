@@ -41,13 +41,36 @@ class NonFiniteLossError(FloatingPointError):
     """Training produced a NaN or infinite loss (`samp.train` exits 1 with this message)."""
 
 
+OPTIMIZER_MODULE = "torch.optim."  # optimizers and (torch.optim.lr_scheduler) schedulers
+
+
 def _partial(node: dict | None, what: str):
-    """A `_partial_` config node (plain dict) -> the callable it describes."""
+    """A `_partial_` config node (plain dict) -> the callable it describes. The node travels inside every
+    checkpoint (its hyperparameters), so it may name nothing but a torch optimizer or scheduler, with plain
+    values: a nested `_target_` would be called while the checkpoint loads (docs/design.md section 7)."""
     from hydra.utils import instantiate
 
     if not isinstance(node, dict) or "_target_" not in node:
         raise ValueError(f"{what} must be a config node with a _target_ (conf/optimizer/), got {node!r}")
+    target = node["_target_"]
+    if not isinstance(target, str) or not target.startswith(OPTIMIZER_MODULE):
+        raise ValueError(f"{what}: _target_ {target!r} is not a torch optimizer or scheduler ({OPTIMIZER_MODULE}*); "
+                         "a checkpoint names no other code (conf/optimizer/ shows the form)")
+    nested = _targets(node, top=True)
+    if nested:
+        raise ValueError(f"{what}: its values may not name code to call ({', '.join(map(repr, nested))}); "
+                         "give numbers, strings, booleans and lists of them")
     return instantiate({**node, "_partial_": True})
+
+
+def _targets(value, top: bool = False) -> list:
+    """Every `_target_` inside `value` (a config node), its own top-level one left out when `top`."""
+    if isinstance(value, dict):
+        found = [] if top else [value["_target_"]] if "_target_" in value else []
+        return found + [t for k, v in value.items() if k != "_target_" or not top for t in _targets(v)]
+    if isinstance(value, (list, tuple)):
+        return [t for v in value for t in _targets(v)]
+    return []
 
 
 class PolicySystemBase(pl.LightningModule):

@@ -44,14 +44,37 @@ def net_spec(net: nn.Module, kwargs: dict | None = None) -> dict:
     return {"target": f"{cls.__module__}.{cls.__qualname__}", "kwargs": _plain(kwargs)}
 
 
+NET_PACKAGE = "samp.robot_sdf."  # where every robot SDF network class lives
+
+
 def build_net(spec: dict) -> nn.Module:
-    module, _, name = spec["target"].rpartition(".")
+    """The network an artifact or checkpoint describes. Its class must be an `nn.Module` of samp's robot SDF
+    package: the description comes from a file, and anything else it named would be called when the file
+    loads (docs/design.md section 7)."""
+    target = spec.get("target") if isinstance(spec, dict) else None
+    if not isinstance(target, str) or not target.startswith(NET_PACKAGE):
+        raise ValueError(f"robot SDF network {target!r} is not a class of {NET_PACKAGE}*; the artifact names code "
+                         "samp does not build networks from (a damaged or crafted file): refused")
+    module, _, name = target.rpartition(".")
     try:
         cls = getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError):
-        raise ValueError(f"robot SDF network class {spec['target']!r} cannot be imported; the artifact was "
+        raise ValueError(f"robot SDF network class {target!r} cannot be imported; the artifact was "
                          "written by another samp version") from None
-    return cls(**spec["kwargs"])
+    if not (isinstance(cls, type) and issubclass(cls, nn.Module)):
+        raise ValueError(f"robot SDF network {target!r} is not a network class (an nn.Module): refused")
+    kwargs = spec.get("kwargs")
+    if not isinstance(kwargs, dict) or _has_target(kwargs):
+        raise ValueError(f"robot SDF network {target!r}: its arguments must be plain values, got {kwargs!r}")
+    return cls(**kwargs)
+
+
+def _has_target(value) -> bool:
+    if isinstance(value, dict):
+        return "_target_" in value or any(_has_target(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return any(_has_target(v) for v in value)
+    return False
 
 
 def _plain(obj):

@@ -134,7 +134,7 @@ def test_results_name_their_provenance_and_commits_of_this_history():
         title = section.splitlines()[0]
         if "|---" in section and title != "Datasets":
             paragraph = re.search(r"\*\*Provenance:\*\*.*?(?:\n\n|$)", section, re.S)
-            assert paragraph and re.search(r"commit `[0-9a-f]{7,}`", paragraph.group(0)) \
+            assert paragraph and re.search(r"commits? `[0-9a-f]{7,}`", paragraph.group(0)) \
                 and DATE.search(paragraph.group(0)), f"results.md section {title!r} has a table but no " \
                 "'**Provenance:**' paragraph naming its commit (`abc1234`) and date (YYYY-MM-DD)"
     shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=REPO, capture_output=True, text=True)

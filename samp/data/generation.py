@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from samp.data.lifecycle import die_with_parent, drain, end_workers, exit_without_teardown, reproducible_mkl
-from samp.data.merging import EVAL_PREFIX, MergeLockTimeout, build_manifest, link_or_copy, merge_lock
+from samp.data.merging import (EVAL_PREFIX, MERGING, MergeLockTimeout, build_manifest, link_or_copy, merge_lock,
+                                move_aside, remove_trash)
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
 
@@ -340,7 +341,7 @@ def merge(spec: DatasetSpec | str | dict, root: Path | None = None) -> Path:
     root = Path(root) if root else datasets_root()
     work = work_dir(spec, root)
     jobs = spec.scene_jobs()
-    _remove_trash(work.parent)
+    remove_trash(work.parent)
     if not work.is_dir():  # merged already (by a shard finishing at the same time), or never generated
         return _merged_already(spec, root) or _merge_locked(spec, root, work, jobs)  # the latter names what is missing
     try:
@@ -360,17 +361,11 @@ def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
     return done
 
 
-MERGING = ".merging-"  # the dataset being assembled, in the work folder: <work>/.merging-<pid>-<ns>/
-TRASH = ".removed-"  # a merged work folder being removed: <root>/<name>/.work/.removed-<hash16>-<pid>-<ns>/
-
-
 def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob]) -> Path:
-    """Under the merge lock (or with no work folder, to name what is missing): assemble the dataset in a
-    folder inside the work folder and publish it by one rename (`finalize_dataset`), then remove the work
-    folder by renaming it aside first. A merge killed at any point leaves, besides a stale lock: a partial
-    `.merging-*` folder (removed here by the next merge, which starts again), or a published dataset and a
-    whole work folder (the next merge finds the same id and returns it), or a `.removed-*` folder (removed
-    by the next `merge` of that name)."""
+    """Under the merge lock (or with no work folder, to name what is missing): assemble the dataset inside the
+    work folder, publish it by one rename (`finalize_dataset`), then move the work folder aside and remove it.
+    A killed merge leaves a stale lock and a partial `.merging-*` folder (the next merge starts again), or a
+    published dataset (the next finds its id), or a `.removed-*` folder (the next removes it)."""
     from samp.provenance import code_version, package_versions
 
     missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
@@ -394,28 +389,9 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    # Aside first, in one rename: a merge killed while removing leaves no work folder with scenes missing
-    # (which the next merge would take for unfinished shards), only a `.removed-*` folder.
-    trash = work.parent / f"{TRASH}{work.name}-{os.getpid()}-{time.time_ns()}"
-    try:
-        work.rename(trash)  # the merge lock goes with it: waiters find the work folder gone, and the dataset
-    except OSError:
-        shutil.rmtree(work, ignore_errors=True)
-    _remove_trash(work.parent)
+    move_aside(work)
+    remove_trash(work.parent)
     return dest
-
-
-def _remove_trash(work_parent: Path) -> None:
-    """Remove the `.removed-*` folders of `<root>/<name>/.work/` (merged work folders), and that folder when
-    it is left empty."""
-    if not work_parent.is_dir():
-        return
-    for trash in work_parent.glob(TRASH + "*"):
-        shutil.rmtree(trash, ignore_errors=True)
-    try:
-        work_parent.rmdir()  # only when empty
-    except OSError:
-        pass
 
 
 def _asset_hash(robot: str) -> str:

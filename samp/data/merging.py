@@ -38,8 +38,8 @@ import numpy as np
 
 from samp.names import SPLIT_ALIASES, SPLITS
 
-__all__ = ["EVAL_PREFIX", "HEARTBEAT_S", "STALE_AFTER_S", "WAIT_TIMEOUT_S", "MergeLockTimeout", "build_manifest",
-           "link_or_copy", "merge_lock"]
+__all__ = ["EVAL_PREFIX", "HEARTBEAT_S", "MERGING", "STALE_AFTER_S", "TRASH", "WAIT_TIMEOUT_S", "MergeLockTimeout",
+           "build_manifest", "link_or_copy", "merge_lock", "move_aside", "remove_trash"]
 
 EVAL_PREFIX = "eval_"  # the evaluation problems' times in a sidecar: eval_planning_time, ...
 
@@ -252,6 +252,33 @@ def _heartbeat(lock: Path, content: bytes, stop: threading.Event) -> None:
             os.utime(lock)
         except OSError:
             return
+
+
+MERGING = ".merging-"  # the dataset being assembled, in the work folder: <work>/.merging-<pid>-<ns>/
+TRASH = ".removed-"  # a merged work folder being removed: <root>/<name>/.work/.removed-<hash16>-<pid>-<ns>/
+
+
+def move_aside(work: Path) -> None:
+    """Rename a merged work folder aside, in one step, before it is removed: a merge killed while removing
+    leaves no work folder with scenes missing (which the next merge would take for unfinished shards),
+    only a `.removed-*` folder. The merge lock goes with it: waiters find the work folder gone."""
+    try:
+        work.rename(work.parent / f"{TRASH}{work.name}-{os.getpid()}-{time.time_ns()}")
+    except OSError:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def remove_trash(work_parent: Path) -> None:
+    """Remove the `.removed-*` folders of `<root>/<name>/.work/` (merged work folders), and that folder when
+    it is left empty."""
+    if not work_parent.is_dir():
+        return
+    for trash in work_parent.glob(TRASH + "*"):
+        shutil.rmtree(trash, ignore_errors=True)
+    try:
+        work_parent.rmdir()  # only when empty
+    except OSError:
+        pass
 
 
 def link_or_copy(src: Path, dst: Path) -> None:

@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 
 from samp.data import generate, load_spec, merge
-from samp.data.generation import MERGING, TRASH, work_dir
+from samp.data.generation import work_dir
+from samp.data.merging import MERGING, TRASH
 from samp.data.merging import LOCK_NAME, STALE_AFTER_S, MergeLockTimeout, merge_lock
 
 DEADLINE = 120  # seconds; a bound on a poll, never a timing that is asserted
@@ -252,13 +253,13 @@ elif point == "published":  # the dataset renamed into place, the work folder no
         die()
     generation.finalize_dataset = finalize_dataset
 elif point == "removing":  # the work folder renamed aside, not yet deleted
-    remove, calls = generation._remove_trash, []
-    def _remove_trash(folder):
+    remove, calls = generation.remove_trash, []
+    def remove_trash(folder):
         calls.append(folder)
         if len(calls) == 2:  # the first is merge's own clean-up before it starts
             die()
         remove(folder)
-    generation._remove_trash = _remove_trash
+    generation.remove_trash = remove_trash
 generation.merge(json.loads(sys.argv[1]), root)
 """
 

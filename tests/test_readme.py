@@ -126,6 +126,18 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.data ls", Run("python -m samp.data ls", prints=["smoke@"])),
     ("python -m samp.data show dataset=quickstart", Run("python -m samp.data show dataset=smoke", prints=["smoke"])),
     ("python -m samp.data verify dataset=quickstart", Run("python -m samp.data verify dataset=smoke")),
+    # Sharing through remotes and pinning inputs: tests/data/test_data_remote.py runs them against a folder and
+    # a local S3 API server on the smoke dataset and a tiny run
+    ("python -m samp.data push dataset=quickstart remote=file:///srv/samp",
+     RunElsewhere("data/test_data_remote.py", '"push", f"dataset=smoke@{ident}", f"remote={remote}"')),
+    ("python -m samp.data pull dataset=quickstart@ID remote=file:///srv/samp",
+     RunElsewhere("data/test_data_remote.py", '"pull", f"dataset=smoke@{ident[:6]}", f"remote={remote}"')),
+    ("python -m samp.train experiment=quickstart --lock",
+     RunElsewhere("data/test_data_remote.py", '"samp.train", *TRAIN, "datamodule.dataset=smoke", "--lock"')),
+    ("python -m samp.runs push runs/quickstart/2026-05-01_10-00-00 remote=file:///srv/samp",
+     RunElsewhere("data/test_data_remote.py", '"push", str(run), f"remote={where}"')),
+    ("python -m samp.runs pull quickstart/2026-05-01_10-00-00 remote=file:///srv/samp",
+     RunElsewhere("data/test_data_remote.py", '"pull", f"mpnet/{run.name}", f"remote={where}"')),
     ("python -m samp.data inspect dataset=quickstart", Run("python -m samp.data inspect dataset=smoke")),
     # Shards of a spec of its own (the smoke spec with another seed): one shard, the launcher, the merge
     ("python -m samp.data generate dataset=paper shard=3 num_shards=40 workers=8",

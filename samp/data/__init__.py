@@ -15,6 +15,7 @@ _MODULES = {
     "GenerationError": "generation", "generate": "generation", "merge": "generation",
     "DatasetError": "registry", "list_datasets": "registry", "read_manifest": "registry", "resolve_ref": "registry",
     "verify_dataset": "registry",
+    "pull_dataset": "sharing", "push_dataset": "sharing",
     "DatasetSpec": "spec", "available_specs": "spec", "load_spec": "spec",
 }
 __getattr__, __all__ = lazy_exports(__name__, {name: f"samp.data.{module}" for name, module in _MODULES.items()})

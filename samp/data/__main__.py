@@ -1,4 +1,5 @@
-"""`python -m samp.data COMMAND [key=value ...]`: generate, merge, list, show, verify and inspect datasets."""
+"""`python -m samp.data COMMAND [key=value ...]`: generate, merge, list, show, verify and inspect datasets; push
+and pull them through remotes."""
 
 from __future__ import annotations
 
@@ -15,9 +16,13 @@ USAGE = """usage: python -m samp.data COMMAND [key=value ...]
   show dataset=REF [root=DIR]           a dataset's manifest: spec, counts, splits, provenance
   verify dataset=REF [root=DIR]         re-hash every file; names each file that differs (exit 1)
   inspect dataset=REF [root=DIR]        per-scene and per-generator statistics, MCAP channels and schemas
+  push dataset=REF remote=URL [root=DIR]          upload a dataset to a remote (file://, s3://, hf://)
+  pull dataset=NAME@ID remote=URL [root=DIR]      download one, every file checked (also dataset=URL/datasets/NAME@ID)
 For generate and merge, dataset=NAME is a spec, conf/dataset/NAME.yaml (`+dataset=NAME` is read the same),
 and dataset.KEY=VALUE changes one of its settings. Elsewhere REF is NAME (the newest), NAME@ID (an id
-prefix is enough) or a dataset folder, and may be given bare: `python -m samp.data verify quickstart`."""
+prefix is enough) or a dataset folder, and may be given bare: `python -m samp.data verify quickstart`.
+A bare NAME means the id that samp.lock (or $SAMP_LOCK) pins, when a lock file is in effect
+(`python -m samp.train experiment=NAME --lock` writes one)."""
 
 
 def _help() -> str:
@@ -85,12 +90,12 @@ def _print_summary(folder: Path) -> None:
           f"{m['planning_time']['total_s'] + m['eval_planning_time']['total_s']:.1f} s")
 
 
-def _parse(args: list[str], needs_ref: bool) -> tuple[str | None, dict]:
+def _parse(args: list[str], needs_ref: bool, keys: tuple[str, ...] = ()) -> tuple[str | None, dict]:
     """(the dataset reference, the options): `dataset=REF` or a bare REF (`ref=REF`, the older key, too),
-    and `root=DIR`."""
+    `root=DIR` and the command's own `keys`."""
     from samp.cli import parse_options
 
-    bare, opts, _ = parse_options(args, ("dataset", "ref", "root"), positional="REF" if needs_ref else None,
+    bare, opts, _ = parse_options(args, ("dataset", "ref", "root", *keys), positional="REF" if needs_ref else None,
                                   command="this command (see `python -m samp.data --help`)")
     refs = bare + [opts.pop(k) for k in ("dataset", "ref") if k in opts]
     if len(refs) > 1:
@@ -203,6 +208,28 @@ def _inspect(args: list[str]) -> None:
               f"{stats.channel_message_counts.get(cid, 0):>6} messages")
 
 
+def _push(args: list[str]) -> None:
+    from samp.data.sharing import push_dataset
+
+    ref, opts = _parse(args, needs_ref=True, keys=("remote",))
+    if not opts.get("remote"):
+        raise ValueError("say where to push: remote=URL (file:///srv/samp, s3://bucket/samp, hf://datasets/ORG/REPO)")
+    url, sent, kept = push_dataset(ref, opts["remote"], _root(opts))
+    print(f"pushed {url}: {sent} files uploaded, {kept} already there")
+
+
+def _pull(args: list[str]) -> None:
+    from samp.data.sharing import pull_dataset
+
+    ref, opts = _parse(args, needs_ref=True, keys=("remote",))
+    folder, got, kept = pull_dataset(ref, opts.get("remote"), _root(opts))
+    if got + kept == 0:
+        print(f"dataset {folder.parent.name}@{folder.name} is here already: {folder}")
+    else:
+        print(f"pulled {folder.parent.name}@{folder.name} into {folder}: {got} files downloaded, {kept} kept from an "
+              "earlier try; every file matches its sha256 and the dataset its id")
+
+
 def _detour_line(wanted, episodes: list[dict], eval_problems: list[dict]) -> str:
     """The share of problems whose straight start-goal line is blocked (recorded per problem from format 3)."""
     parts = []
@@ -218,7 +245,7 @@ def _detour_line(wanted, episodes: list[dict], eval_problems: list[dict]) -> str
 
 def main(argv: list[str] | None = None) -> int:
     commands = {"generate": _generate, "merge": _merge, "ls": _ls, "show": _show, "verify": _verify,
-                "inspect": _inspect}
+                "inspect": _inspect, "push": _push, "pull": _pull}
     return run_command(argv, _help, commands)
 
 

@@ -159,7 +159,8 @@ def scene_count_problems(path: Path, manifest: dict, records: list[SceneRecord] 
 
 
 def open_dataset(ref: str | Path, root: Path | None = None) -> Dataset:
-    """Open `name` (newest), `name@id` (a unique id prefix is enough) or a dataset folder.
+    """Open `name` (newest, or the id a lock file pins), `name@id` (a unique id prefix is enough), a dataset
+    folder, or a remote reference `<remote>/datasets/NAME@ID` (pulled into `root` first; samp/data/sharing.py).
 
     Refuses (DatasetError) whatever `python -m samp.data verify` refuses: a manifest changed after
     writing, a file entry outside the folder, a file whose sha256 differs, an unreadable scene file (MCAP

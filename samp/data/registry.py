@@ -179,13 +179,22 @@ def list_datasets(root: Path | None = None) -> list[dict]:
     return out
 
 
-def resolve_ref(ref: str | Path, root: Path | None = None) -> Path:
-    """`name` (newest), `name@id` (an id prefix is enough when unique) or a folder path -> the dataset folder."""
+def resolve_ref(ref: str | Path, root: Path | None = None, lock: bool = True) -> Path:
+    """`name` (newest, or the id a lock file pins: samp/data/lock.py), `name@id` (an id prefix is enough when
+    unique), a folder path, or a remote reference `<remote>/datasets/NAME@ID` (pulled into `root` first,
+    samp/data/sharing.py) -> the dataset folder. `lock=False` ignores the lock file."""
     root = Path(root) if root else datasets_root()
     path = Path(ref)
     if (path / MANIFEST).is_file():
         return path
+    if isinstance(ref, str) and "://" in ref:
+        from samp.data.sharing import pull_dataset
+
+        return pull_dataset(ref, root=root)[0]
     name, _, ident = str(ref).partition("@")
+    pinned = _locked(name, root) if lock and not ident else None
+    if pinned:
+        return pinned
     candidates = [d for d in list_datasets(root) if d["name"] == name and d["id"].startswith(ident)]
     if not candidates:
         available = sorted({f"{d['name']}@{d['id']}" for d in list_datasets(root)})
@@ -194,6 +203,23 @@ def resolve_ref(ref: str | Path, root: Path | None = None) -> Path:
     if ident and len({d["id"] for d in candidates}) > 1:
         raise DatasetError(f"dataset id prefix {ref!r} is ambiguous: {[d['id'] for d in candidates]}")
     return Path(max(candidates, key=lambda d: d["created"])["path"])
+
+
+def _locked(name: str, root: Path) -> Path | None:
+    """The folder of the id the lock file in effect pins for the bare `name` (None: not pinned); a pinned
+    id that is not under `root` is a DatasetError saying how to get it."""
+    from samp.data.lock import locked
+
+    pin = locked("datasets", name)
+    if pin is None:
+        return None
+    ref, lock_path = pin
+    found = [d for d in list_datasets(root) if f"{d['name']}@{d['id']}" == ref]
+    if found:
+        return Path(found[0]["path"])
+    raise DatasetError(f"dataset {name!r} is pinned to {ref} by the lock file {lock_path}, and {ref} is not under "
+                       f"{root}: pull it (`python -m samp.data pull dataset={ref} remote=URL`), or generate it from the "
+                       f"spec it was made from, or write the lock again (`python -m samp.train experiment=NAME --lock`)")
 
 
 def file_problems(folder: Path, manifest: dict) -> list[str]:

@@ -35,6 +35,7 @@ def open_benchmark(name: str, root: str | Path | None = None, workers: int = 2):
     """The benchmark's dataset as its spec defines it now, generated first (once) when it is not built yet
     or when the newest one of its name was made from another version of the spec (its config hash)."""
     from samp.data import DatasetError, generate, load_spec, open_dataset
+    from samp.data.lock import is_pinned
 
     spec = benchmark_spec(name)
     root = Path(root) if root else None
@@ -44,8 +45,8 @@ def open_benchmark(name: str, root: str | Path | None = None, workers: int = 2):
         print(f"benchmark {name!r} is not built yet: generating {spec} from conf/dataset/{spec}.yaml once "
               f"(expert solutions for every problem, {workers} workers)", flush=True)
     else:
-        if found.manifest.get("config_hash") == load_spec(spec).config_hash():
-            return found
+        if found.manifest.get("config_hash") == load_spec(spec).config_hash() or is_pinned(spec):
+            return found  # one pinned by the lock file is used as it is
         print(f"benchmark {name!r}: the newest {spec} ({found.name}@{found.id}) was made from another version of "
               f"conf/dataset/{spec}.yaml; generating the current one (the older one stays, by its id)", flush=True)
     return open_dataset(generate(spec, workers=workers, root=root))

@@ -10,6 +10,8 @@ usage: python -m samp.runs COMMAND [key=value ...]
   plot RUN kind=run [out=DIR]          one run's learning curves, outcomes and SDF slice (RUN/plots/)
                                                    learning curves from metrics.csv, or bars of final metrics
   paper-tables [root=DIR] [out=DIR]                Table I and Table II on the benchmark, from the runs that exist
+  push RUN remote=URL                              upload an ended run (file://, s3://, hf://)
+  pull EXPERIMENT/RUN remote=URL [root=DIR]        download one into runs/, every file checked (or run=URL)
 
 RUN and DIR are run folders (also run=RUN, dir=DIR). Keys are config keys (datamodule.n_e, name), record
 keys (status, seed, dataset_id, protocol) and metrics (val/loss, eval/samp/benchmark/success_rate); in `ls`,
@@ -173,8 +175,31 @@ def _paper_tables(args: list[str]) -> None:
         print("wrote " + ", ".join(str(p) for p in write_table(out / name, header, rows, title, note)) + "\n")
 
 
+def _push(args: list[str]) -> None:
+    from samp.runs.sharing import push_run
+
+    folders, opts, _ = _args("push", args, ("remote",), subject="run")
+    if not opts.get("remote"):
+        raise ValueError("say where to push: remote=URL (file:///srv/samp, s3://bucket/samp, hf://datasets/ORG/REPO)")
+    url, sent, kept = push_run(_root(_one("push", "run", folders)), opts["remote"])
+    print(f"pushed {url}: {sent} files uploaded, {kept} already there")
+
+
+def _pull(args: list[str]) -> None:
+    from samp.runs.sharing import pull_run
+
+    refs, opts, _ = _args("pull", args, ("remote", "root"), subject="run")
+    folder, got, kept = pull_run(_one("pull", "run", refs), opts.get("remote"),
+                                 _root(opts["root"]) if opts.get("root") else None)
+    if got + kept == 0:
+        print(f"run {folder} is here already")
+    else:
+        print(f"pulled into {folder}: {got} files downloaded, {kept} kept from an earlier try; every file matches "
+              "its sha256 and the checkpoints the sha256 its run.json recorded")
+
+
 COMMANDS = {"ls": _ls, "show": _show, "compare": _compare, "table": _table, "plot": _plot,
-            "paper-tables": _paper_tables}
+            "paper-tables": _paper_tables, "push": _push, "pull": _pull}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -122,7 +122,9 @@ def scan_runs(root: Path | str) -> tuple[list[Run], list[tuple[Path, str]]]:
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no such folder: {root}")
-    paths = [root] if (root / RUN_JSON).is_file() else sorted(p.parent for p in root.rglob(RUN_JSON))
+    # a hidden folder is not a published run: `.pull-*` is a pull in progress (samp/runs/sharing.py)
+    paths = [root] if (root / RUN_JSON).is_file() else sorted(
+        p.parent for p in root.rglob(RUN_JSON) if not any(s.startswith(".") for s in p.relative_to(root).parts[:-1]))
     runs, damaged = [], []
     for p in paths:
         try:

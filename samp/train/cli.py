@@ -14,6 +14,8 @@ __all__ = ["USAGE", "hydra_quoted", "interrupted_hint", "main"]
 USAGE = """usage: python -m samp.train experiment=NAME [key=value ...]        train a run (runs/<name>/<timestamp>/)
        python -m samp.train experiment=NAME [key=value ...] --cfg job|hydra|all [--resolve]
                                                                  print the composed config; nothing is trained
+       python -m samp.train experiment=NAME [key=value ...] --lock[=FILE]
+                    pin the NAME@ID of its dataset, benchmark and robot SDF in samp.lock (or FILE); nothing is trained
        python -m samp.train resume=RUN_DIR [key=value ...]         continue a run from its checkpoints/last.ckpt
        python -m samp.train -m sweep=NAME [hydra/launcher=runs_joblib|runs_slurm] [key=value ...]   a sweep
        python -m samp.train -m experiment=A,B [seed=0,1] [key=value ...]                             an ad-hoc sweep
@@ -65,6 +67,29 @@ def _cfg_flags(argv: list[str]) -> tuple[str | None, bool | None, list[str]]:
     return show, resolve, rest
 
 
+def _lock_flag(argv: list[str]) -> tuple[Path | None, list[str]]:
+    """`--lock` (samp.lock in the current folder) or `--lock=FILE`: (the lock file or None, the rest)."""
+    from samp.data.lock import LOCK_FILE
+
+    flags = [a for a in argv if a == "--lock" or a.startswith("--lock=")]
+    if not flags:
+        return None, argv
+    return Path(flags[-1].partition("=")[2] or LOCK_FILE), [a for a in argv if a not in flags]
+
+
+def _write_lock(overrides: list[str], out: Path) -> None:
+    from samp.train.lock import write_lock
+
+    if any(a in ("-m", "--multirun") or a.lstrip("+").startswith("sweep=") for a in overrides):
+        raise ValueError("--lock pins the inputs of one config: give its experiment and overrides without -m or "
+                         "sweep= (a sweep's members share them; lock them once)")
+    data = write_lock(overrides, out)
+    print(f"wrote {out}:")
+    for kind in ("datasets", "robot_sdf"):
+        for name, ref in sorted(data[kind].items()):
+            print(f"  {name} -> {ref}")
+
+
 def _print_config(overrides: list[str], show: str, resolve: bool | None) -> None:
     """`--cfg`: the config a run would get (checked as for a run; interpolations resolved where they can be),
     `hydra:` Hydra's own settings (as written), or both. For a sweep (`-m`, `sweep=NAME`): its first member's."""
@@ -107,6 +132,10 @@ def main(argv: list[str] | None = None) -> int:
         show, resolve, argv = _cfg_flags(argv)
         if show is not None:
             _print_config(argv, show, resolve)
+            return 0
+        lock, argv = _lock_flag(argv)
+        if lock is not None:
+            _write_lock(argv, lock)
             return 0
     except bad_input as err:
         print(f"error: {err}", file=sys.stderr)

@@ -42,7 +42,7 @@ def _listing(found: list[dict]) -> str:
     return "; ".join(f"{c['path']} (id {c['id']}, {c['model'] or 'network not recorded'})" for c in found)
 
 
-def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
+def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None, lock: bool = True) -> Path:
     """A robot SDF reference -> its artifact or run folder.
 
     REF is an existing path, an experiment name (`robot_sdf_panda`: its newest completed run that wrote
@@ -50,14 +50,16 @@ def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
     `model=robot_sdf_nn` under the same name is never picked for it), or `NAME@ID` (the run of that name
     whose artifact's content id starts with ID, whatever its network). A name whose runs trained several
     kinds of network, with no experiment config to say which is meant, or an ID prefix matching several
-    artifacts, is refused with the candidates. FileNotFoundError when nothing matches."""
+    artifacts, is refused with the candidates. FileNotFoundError when nothing matches. A bare name that the
+    lock file in effect pins (samp/data/lock.py) means its pinned NAME@ID, unless `lock=False`."""
     from samp.robot_sdf.artifact import ARTIFACT_FILE
     from samp.runs import runs_root
 
     path = Path(str(ref)).expanduser()
     if path.exists():
         return path
-    name, _, wanted_id = str(ref).partition("@")
+    pin = _pinned_robot_sdf(str(ref)) if lock and "@" not in str(ref) else None
+    name, _, wanted_id = str(pin[0] if pin else ref).partition("@")
     folder = (Path(runs_dir) if runs_dir else runs_root()) / name
     found = _candidates(folder)
     if wanted_id:
@@ -67,8 +69,10 @@ def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
                              f"{_listing(matches)}. Give more digits of the id, or the run folder")
         if matches:
             return matches[0]["path"]
+        pinned = f" ({ref!r} is pinned to {pin[0]} by the lock file {pin[1]})" if pin else ""
         raise FileNotFoundError(f"no completed {name!r} run under {folder} has a robot SDF whose id starts with "
-                                f"{wanted_id!r}; there are: {_listing(found) or 'none'}")
+                                f"{wanted_id!r}{pinned}; there are: {_listing(found) or 'none'}. Pull the run that "
+                                "made it (`python -m samp.runs pull`), or train it")
     kind = _experiment_model(name)
     of_kind = [c for c in found if kind is None or c["model"] in (kind, None)]
     if kind is None and len({c["model"] for c in of_kind}) > 1:
@@ -83,6 +87,12 @@ def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
                             f"of the network {kind or 'it trains'} under {folder}{other}. Train one with "
                             f"`python -m samp.train experiment=robot_sdf_{robot}`, pass build_missing.robot_sdf=true, or "
                             "set system.robot_sdf to a run folder, an artifact, or NAME@ID")
+
+
+def _pinned_robot_sdf(ref: str):
+    from samp.data.lock import locked
+
+    return locked("robot_sdf", ref)
 
 
 def _buildable(ref: str, robot: str) -> bool:
@@ -120,6 +130,7 @@ def _dataset(cfg) -> None:
     """Generate the DataModule's dataset from its spec (conf/dataset/) when none is built yet, or when the
     newest one of that name was generated from another version of the spec (its config hash differs)."""
     from samp.data import DatasetError, available_specs, generate, load_spec, open_dataset
+    from samp.data.lock import is_pinned
 
     ref, root = str(cfg.datamodule.dataset), _datasets_root(cfg)
     spec = load_spec(ref) if ref in available_specs() else None
@@ -130,8 +141,8 @@ def _dataset(cfg) -> None:
             raise
         print(f"dataset {ref!r} is not built yet: generating it from conf/dataset/{ref}.yaml", flush=True)
     else:
-        if spec is None or found.manifest.get("config_hash") == spec.config_hash():
-            return
+        if spec is None or found.manifest.get("config_hash") == spec.config_hash() or is_pinned(ref):
+            return  # a dataset pinned by the lock file is used as it is, whatever the spec says now
         print(f"the newest {ref!r} dataset ({found.name}@{found.id}) was made from another version of "
               f"conf/dataset/{ref}.yaml: generating the current one (the older one stays as it is)", flush=True)
     generate(ref, workers=int(cfg.build_missing.workers), root=root)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Callable
 
 __all__ = ["HELP_FLAGS", "canonical_overrides", "command_help", "compose", "config_names", "config_yaml",
-           "default_groups", "describe", "output_path", "parse_options", "run_command", "settings_help",
+           "default_groups", "describe", "flag", "output_path", "parse_options", "run_command", "settings_help",
            "wants_help", "wrap"]
 
 HELP_FLAGS = ("-h", "--help")
@@ -177,6 +177,16 @@ def command_help(config_name: str, indent: str = "  ") -> str:
 
 
 # --- key=value options --------------------------------------------------------------------------------------
+
+def flag(key: str, value: str) -> bool:
+    """A `key=true|false` option's value (also 1/0, yes/no); ValueError naming the key otherwise."""
+    text = str(value).strip().lower()
+    if text in ("true", "1", "yes"):
+        return True
+    if text in ("false", "0", "no"):
+        return False
+    raise ValueError(f"{key}={value!r}: give {key}=true or {key}=false")
+
 
 def _is_option(token: str, keys) -> bool:
     return "=" in token and token.partition("=")[0] in keys

@@ -77,15 +77,17 @@ def _size(fs, path: str) -> int | None:
         return None
 
 
-def push_folder(folder: Path, files: dict[str, dict], root: str, entry: str, meta: dict) -> tuple[int, int]:
+def push_folder(folder: Path, files: dict[str, dict], root: str, entry: str, meta: dict,
+                force: bool = False) -> tuple[int, int]:
     """Upload `files` ({path inside `folder`: {"sha256", "size"}}, already verified by the caller) as blobs
     under the remote `root`, then the index of `entry` (a path below `root`, e.g. "datasets/NAME@ID")
-    with `meta` beside the file table. Returns (files uploaded, files already there)."""
+    with `meta` beside the file table. A blob already there with the right size is kept unless `force`
+    (which replaces damaged blobs). Returns (files uploaded, files already there)."""
     fs, root_path = open_remote(root)
     sent = kept = 0
     for rel, info in sorted(files.items()):
         blob = blob_url(root_path, info["sha256"])
-        if _size(fs, blob) == info["size"]:  # written whole (blobs are written before any index names them)
+        if not force and _size(fs, blob) == info["size"]:  # whole: blobs are written before an index names them
             kept += 1
             continue
         fs.makedirs(blob.rsplit("/", 1)[0], exist_ok=True)
@@ -152,7 +154,7 @@ def pull_folder(root: str, entry: str, index: dict, staging: Path) -> tuple[int,
             part.unlink()
             raise RemoteError(f"remote file {rel} of {join(root, entry)} is damaged: sha256 expected {info['sha256']}, "
                               f"actual {actual} ({blob_url(root, info['sha256'])}); nothing was published locally. "
-                              "Push the entry again from an intact copy")
+                              "Push it again from an intact copy with force=true (every file uploaded anew)")
         part.replace(dest)
         got += 1
     wanted = {(staging / rel).resolve() for rel in index["files"]}

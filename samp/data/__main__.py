@@ -16,7 +16,7 @@ USAGE = """usage: python -m samp.data COMMAND [key=value ...]
   show dataset=REF [root=DIR]           a dataset's manifest: spec, counts, splits, provenance
   verify dataset=REF [root=DIR]         re-hash every file; names each file that differs (exit 1)
   inspect dataset=REF [root=DIR]        per-scene and per-generator statistics, MCAP channels and schemas
-  push dataset=REF remote=URL [root=DIR]          upload a dataset to a remote (file://, s3://, hf://)
+  push dataset=REF remote=URL [force=true] [root=DIR]   upload a dataset to a remote (file://, s3://, hf://)
   pull dataset=NAME@ID remote=URL [root=DIR]      download one, every file checked (also dataset=URL/datasets/NAME@ID)
 For generate and merge, dataset=NAME is a spec, conf/dataset/NAME.yaml (`+dataset=NAME` is read the same),
 and dataset.KEY=VALUE changes one of its settings. Elsewhere REF is NAME (the newest), NAME@ID (an id
@@ -211,10 +211,12 @@ def _inspect(args: list[str]) -> None:
 def _push(args: list[str]) -> None:
     from samp.data.sharing import push_dataset
 
-    ref, opts = _parse(args, needs_ref=True, keys=("remote",))
+    from samp.cli import flag
+
+    ref, opts = _parse(args, needs_ref=True, keys=("remote", "force"))
     if not opts.get("remote"):
         raise ValueError("say where to push: remote=URL (file:///srv/samp, s3://bucket/samp, hf://datasets/ORG/REPO)")
-    url, sent, kept = push_dataset(ref, opts["remote"], _root(opts))
+    url, sent, kept = push_dataset(ref, opts["remote"], _root(opts), force=flag("force", opts.get("force", "false")))
     print(f"pushed {url}: {sent} files uploaded, {kept} already there")
 
 

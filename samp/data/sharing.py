@@ -52,9 +52,8 @@ def remote_entry(remote: str, name: str, ident: str) -> str:
     found = sorted(e for e in entries if e.partition("@")[0] == name and e.partition("@")[2].startswith(ident))
     if len(found) != 1:
         have = sorted(e for e in entries if e.startswith(f"{name}@"))
-        what = "no" if not found else f"{len(found)} entries:"
-        raise RemoteError(f"{what} dataset {name}@{ident} on {remote} {', '.join(found)}; its {name} datasets: "
-                          f"{', '.join(have) or 'none'}")
+        what = f"no dataset {name}@{ident}" if not found else f"dataset id prefix {name}@{ident} is ambiguous"
+        raise RemoteError(f"{what} on {remote}; its {name} datasets: {', '.join(have) or 'none'}")
     return found[0]
 
 
@@ -69,9 +68,10 @@ def _hashed_files(folder: Path, manifest: dict) -> dict[str, dict]:
     return files
 
 
-def push_dataset(ref: str | Path, remote: str, root: Path | None = None) -> tuple[str, int, int]:
-    """Verify the local dataset `ref` (a name, NAME@ID or folder) and upload it to `remote`.
-    Returns (the entry's URL, files uploaded, files already there)."""
+def push_dataset(ref: str | Path, remote: str, root: Path | None = None, force: bool = False) -> tuple[str, int, int]:
+    """Verify the local dataset `ref` (a name, NAME@ID or folder) and upload it to `remote` (`force`: every
+    file, also those already there, e.g. to replace a damaged one). Returns (the entry's URL, files
+    uploaded, files already there)."""
     from samp.data.registry import verify_dataset
 
     folder = resolve_ref(ref, root)
@@ -81,7 +81,7 @@ def push_dataset(ref: str | Path, remote: str, root: Path | None = None) -> tupl
     manifest = read_manifest(folder)
     entry = f"{DATASETS}/{manifest['name']}@{manifest['id']}"
     sent, kept = push_folder(folder, _hashed_files(folder, manifest), remote, entry,
-                             {"kind": "dataset", "ref": f"{manifest['name']}@{manifest['id']}"})
+                             {"kind": "dataset", "ref": f"{manifest['name']}@{manifest['id']}"}, force)
     return join(remote, entry), sent, kept
 
 
@@ -122,9 +122,10 @@ def pull_dataset(ref: str, remote: str | None = None, root: Path | None = None) 
 def _check_pulled(staging: Path, name: str, ident: str, index: dict, url: str) -> None:
     """Refuse (RemoteError, nothing published) a pulled folder that is not the dataset NAME@ID, intact."""
     try:
-        manifest = read_manifest(staging)
-    except DatasetError as err:
-        raise RemoteError(f"{url}: {err}") from None
+        manifest = read_manifest(staging, check_sizes=False)  # the files are checked below, against the index
+    except DatasetError as err:  # its advice (restore, regenerate) is for a local dataset: only the first part
+        raise RemoteError(f"{url}: its {MANIFEST} is not intact ({str(err).split('; ')[0]}); nothing was published "
+                          "locally. Push the dataset again from an intact copy") from None
     if (manifest.get("name"), manifest.get("id")) != (name, ident):
         raise RemoteError(f"{url} holds the manifest of {manifest.get('name')}@{manifest.get('id')}, not {name}@{ident}; "
                           "push the dataset again")
@@ -132,4 +133,4 @@ def _check_pulled(staging: Path, name: str, ident: str, index: dict, url: str) -
     problems = [f"{rel}: not in {url}'s index" for rel in missing] or file_problems(staging, manifest)
     if problems:
         raise RemoteError(f"{url} is not the dataset its manifest describes: {'; '.join(problems[:3])}; nothing was "
-                          "published locally. Push the dataset again from an intact copy")
+                          "published locally. Push the dataset again from an intact copy with force=true")

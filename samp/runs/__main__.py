@@ -10,7 +10,7 @@ usage: python -m samp.runs COMMAND [key=value ...]
   plot RUN kind=run [out=DIR]          one run's learning curves, outcomes and SDF slice (RUN/plots/)
                                                    learning curves from metrics.csv, or bars of final metrics
   paper-tables [root=DIR] [out=DIR]                Table I and Table II on the benchmark, from the runs that exist
-  push RUN remote=URL                              upload an ended run (file://, s3://, hf://)
+  push RUN remote=URL [force=true]                 upload an ended run (file://, s3://, hf://)
   pull EXPERIMENT/RUN remote=URL [root=DIR]        download one into runs/, every file checked (or run=URL)
 
 RUN and DIR are run folders (also run=RUN, dir=DIR). Keys are config keys (datamodule.n_e, name), record
@@ -178,10 +178,13 @@ def _paper_tables(args: list[str]) -> None:
 def _push(args: list[str]) -> None:
     from samp.runs.sharing import push_run
 
-    folders, opts, _ = _args("push", args, ("remote",), subject="run")
+    from samp.cli import flag
+
+    folders, opts, _ = _args("push", args, ("remote", "force"), subject="run")
     if not opts.get("remote"):
         raise ValueError("say where to push: remote=URL (file:///srv/samp, s3://bucket/samp, hf://datasets/ORG/REPO)")
-    url, sent, kept = push_run(_root(_one("push", "run", folders)), opts["remote"])
+    url, sent, kept = push_run(_root(_one("push", "run", folders)), opts["remote"],
+                               force=flag("force", opts.get("force", "false")))
     print(f"pushed {url}: {sent} files uploaded, {kept} already there")
 
 

@@ -36,8 +36,9 @@ def _files(folder: Path) -> dict[str, dict]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def push_run(folder: Path, remote: str) -> tuple[str, int, int]:
-    """Upload the ended run in `folder` to `remote`. Returns (the entry's URL, files uploaded, files there)."""
+def push_run(folder: Path, remote: str, force: bool = False) -> tuple[str, int, int]:
+    """Upload the ended run in `folder` to `remote` (`force`: every file, also those already there).
+    Returns (the entry's URL, files uploaded, files already there)."""
     from samp.integrity import check_recorded_hash
     from samp.runs.folder import RunFolder
 
@@ -50,7 +51,8 @@ def push_run(folder: Path, remote: str) -> tuple[str, int, int]:
     for rel in sorted(record.get(FILES_SHA256) or {}):
         check_recorded_hash(folder / rel)  # IntegrityError naming the file: a damaged run is not shared
     entry = run_entry(folder, record)
-    sent, kept = push_folder(folder, _files(folder), remote, entry, {"kind": "run", "ref": entry.split("/", 1)[1]})
+    sent, kept = push_folder(folder, _files(folder), remote, entry, {"kind": "run", "ref": entry.split("/", 1)[1]},
+                             force)
     return join(remote, entry), sent, kept
 
 
@@ -104,4 +106,4 @@ def _check_record(staging: Path, url: str) -> None:
         actual = file_sha256(path) if path.is_file() else "missing"
         if actual != expected:
             raise RemoteError(f"remote file {rel} of {url} is not the file its {RUN_JSON} recorded: sha256 expected "
-                              f"{expected}, actual {actual}; nothing was published locally. Push the run again")
+                              f"{expected}, actual {actual}; nothing was published locally. Push the run again with force=true")

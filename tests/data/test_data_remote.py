@@ -138,8 +138,15 @@ def test_damaged_remote_file_is_refused_naming_it(smoke, remote, tmp_path):
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert re.search(rf"remote file scene_0001\.mcap of {re.escape(remote)}/datasets/smoke@{ident} is damaged: sha256 "
                      rf"expected {hashes['scene_0001.mcap']}, actual [0-9a-f]{{64}}", proc.stderr), proc.stderr
-    assert "nothing was published locally" in proc.stderr
+    assert "nothing was published locally" in proc.stderr and "with force=true" in proc.stderr
     assert _published(root, "smoke") == [], "a damaged pull publishes nothing"
+    again = _ok(_cli("samp.data", "push", f"smoke@{ident}", f"remote={remote}", f"root={smoke[0]}"))
+    assert f"0 files uploaded, {len(hashes)} already there" in again, "a damaged blob of the right size looks whole"
+    forced = _ok(_cli("samp.data", "push", f"smoke@{ident}", f"remote={remote}", "force=true", f"root={smoke[0]}"))
+    assert f"{len(hashes)} files uploaded, 0 already there" in forced, forced
+    _ok(_cli("samp.data", "pull", f"smoke@{ident}", f"remote={remote}", f"root={root}"))
+    assert _hashes(root / "smoke" / ident) == hashes, "the pull that failed continues, now from intact blobs"
+    shutil.rmtree(root / "smoke")
     index = f"{remote}/datasets/smoke@{ident}/index.json"  # an edited index is refused too
     fs, path = fsspec.core.url_to_fs(index)
     edited = json.loads(fs.cat_file(path))

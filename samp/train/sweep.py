@@ -39,7 +39,7 @@ from samp.runs.distributed import is_rank_zero
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import override_key
 
-__all__ = ["member_state", "multirun"]
+__all__ = ["keep_lock", "member_state", "multirun"]
 
 # Overrides of the member itself that the folder name never needs (they do not vary in a sweep).
 ALWAYS_NAMED = ("experiment",)
@@ -155,6 +155,16 @@ def _is_sweep(override: str) -> bool:
     return OverridesParser.create().parse_override(override).is_sweep_override()
 
 
+def keep_lock() -> None:
+    """Name the lock file in effect (`./samp.lock` of the folder the sweep starts in) in `$SAMP_LOCK`, so
+    that the members, which run from the repository root or in processes of their own, honour it too."""
+    from samp.data.lock import LOCK_ENV, active_lock
+
+    lock = active_lock()
+    if lock is not None:
+        os.environ[LOCK_ENV] = str(lock.resolve())
+
+
 def multirun(argv: list[str]) -> int:
     """Run a sweep (arguments as `python -m samp.train -m ...` takes them, without the `-m`).
     Relative paths are taken from the repository root, as everywhere in samp."""
@@ -168,7 +178,8 @@ def multirun(argv: list[str]) -> int:
     try:
         settings = _hydra_settings(argv)
         argv = _keys_of_swept_experiments(argv)
-    except (ValueError, HydraException, OmegaConfBaseException) as err:
+        keep_lock()
+    except (ValueError, FileNotFoundError, HydraException, OmegaConfBaseException) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     os.chdir(REPO_ROOT)

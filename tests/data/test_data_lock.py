@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -90,3 +91,20 @@ def test_a_pull_is_kept_whole_or_not_at_all(tmp_path):
     with pytest.raises(ValueError, match=r"data\.bin: not in .*index.*nothing was published locally"):
         pull_dataset(f"toy@{folder.name}", remote, tmp_path / "third")
     assert [p.name for p in (tmp_path / "third" / "toy").iterdir()] == [f".pull-{folder.name}"]
+
+
+def test_a_sweep_hands_its_lock_to_its_members(tmp_path, monkeypatch):
+    """A sweep runs its members from the repository root: the lock of the folder it started in goes with them
+    as $SAMP_LOCK (an absolute path), and a member resolves a bare name through it from anywhere."""
+    from samp.train.sweep import keep_lock
+
+    root = tmp_path / "datasets"
+    older, _ = _dataset(root, "toy", b"a"), _dataset(root, "toy", b"b")
+    _lock(tmp_path / "samp.lock", {"toy": f"toy@{older.name}"})
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("SAMP_LOCK", "")  # recorded, so that the variable keep_lock sets is undone after the test
+    monkeypatch.delenv("SAMP_LOCK")
+    keep_lock()
+    assert Path(os.environ["SAMP_LOCK"]) == (tmp_path / "samp.lock").resolve()
+    monkeypatch.chdir(root)
+    assert resolve_ref("toy", root) == older

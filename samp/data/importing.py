@@ -204,7 +204,9 @@ def check_recorded(world, robot, rec: Recorded, waypoints: int, resolution: floa
         return traj, ""
     states, owner = segment_states(traj, resolution)
     seg = states[owner == k]
-    bad = seg[world.in_collision(seg, margin=margin)][0]
+    hits = seg[world.in_collision(seg, margin=margin)]
+    distance = world.min_distance(hits)  # (H,) metres; the deepest state of the first invalid segment is reported
+    bad = hits[int(np.argmin(distance))] if np.isfinite(distance).any() else hits[0]
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))])  # (T,) recorded
     at = np.linalg.norm(np.diff(traj, axis=0), axis=1)[:k].sum() + np.linalg.norm(bad - traj[k])
     step = int(min(np.searchsorted(arc, at), len(q) - 1))

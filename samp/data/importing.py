@@ -58,8 +58,12 @@ def read_source(path: Path, robot, scene: str | None = None, key: str = "observa
         raise FileNotFoundError(f"import source {path} does not exist")
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        with np.load(path, allow_pickle=False) as data:  # no pickles: a source file never runs code
-            arrays = {k: data[k] for k in data.files}
+        try:
+            with np.load(path, allow_pickle=False) as data:  # no pickles: a source file never runs code
+                arrays = {k: data[k] for k in data.files}
+        except ValueError as err:  # object arrays (ragged trajectories saved as a list) need pickle
+            raise ValueError(f"import source {path}: {err}; store trajectories as joint_positions (N, n) with "
+                             "episode_ends, not as an object array") from None
     elif suffix in (".h5", ".hdf5"):
         arrays = _read_hdf5(path)
     else:
@@ -199,18 +203,24 @@ def check_recorded(world, robot, rec: Recorded, waypoints: int, resolution: floa
         return None, (f"jump of {jumps[step]:.3f} rad in {joint} between steps {step} and {step + 1} (more than "
                       f"max_jump={max_jump})")
     traj = resample(q, waypoints)
-    k = first_invalid_segment(world, traj, resolution, margin)
-    if k is None:
+    if first_invalid_segment(world, traj, resolution, margin) is None:
         return traj, ""
     states, owner = segment_states(traj, resolution)
-    seg = states[owner == k]
-    hits = seg[world.in_collision(seg, margin=margin)]
-    distance = world.min_distance(hits)  # (H,) metres; the deepest state of the first invalid segment is reported
-    bad = hits[int(np.argmin(distance))] if np.isfinite(distance).any() else hits[0]
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))])  # (T,) recorded
-    at = np.linalg.norm(np.diff(traj, axis=0), axis=1)[:k].sum() + np.linalg.norm(bad - traj[k])
-    step = int(min(np.searchsorted(arc, at), len(q) - 1))
-    return None, f"at recorded step {step} of {len(q)}: {_what_is_hit(world, robot, bad, margin)}"
+    hits = np.flatnonzero(world.in_collision(states, margin=margin))
+    distance = world.min_distance(states[hits])  # (H,) metres
+    deepest = hits[int(np.argmin(np.where(np.isfinite(distance), distance, np.inf)))]
+    # where along the recording: the state's arc length, measured on the recorded steps
+    seg_start = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(traj, axis=0), axis=1))])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))])
+
+    def step(i: int) -> int:
+        at = seg_start[owner[i]] + np.linalg.norm(states[i] - traj[owner[i]])
+        return int(min(np.searchsorted(arc, at - 1e-12), len(q) - 1))
+
+    where = f"at recorded step {step(hits[0])} of {len(q)}"
+    if step(deepest) != step(hits[0]):
+        where += f" (worst at step {step(deepest)})"
+    return None, f"{where}: {_what_is_hit(world, robot, states[deepest], margin)}"
 
 
 def _what_is_hit(world, robot, q: np.ndarray, margin: float) -> str:

@@ -350,6 +350,21 @@ STEPS: list[tuple[str, object]] = [
     ("pip install -e '.[mlflow]'", Skip("installs packages")),
     ("pip install -e '.[wandb]'", Skip("installs packages")),
     ("mlflow ui --backend-store-uri sqlite:///runs/mlflow.db", Skip("starts a web server")),
+    # Bring your own (docs/bring-your-own.md): from an installed wheel, in a project folder of its own
+    ("pip install /path/to/samp", Skip("installs; tests/e2e/test_bring_your_own.py builds and installs the wheel")),
+    ("pip install '/path/to/samp[import]'", Skip("installs; the dev extra includes [import]")),
+    ("export SAMP_CONFIG_PATH=$PWD/conf",
+     RunElsewhere("e2e/test_bring_your_own.py", '"SAMP_CONFIG_PATH": str(project / "conf")')),
+    ("samp-data import source=demos.npz name=mydemos",
+     RunElsewhere("e2e/test_bring_your_own.py", "samp-data import source=demos.npz name=mydemos")),
+    ("samp-train experiment=my_policy", RunElsewhere("e2e/test_bring_your_own.py", "samp-train experiment=my_policy {TINY}")),
+    ("samp-eval run=runs/my_policy/TIME", RunElsewhere("e2e/test_bring_your_own.py", "samp-eval run={runs[0].parent}")),
+    ("samp-train experiment=my_policy seed=1",
+     RunElsewhere("e2e/test_bring_your_own.py", "samp-train experiment=my_policy seed=1 {TINY}")),
+    ("samp-runs compare runs/my_policy/TIME_A runs/my_policy/TIME_B",
+     RunElsewhere("e2e/test_bring_your_own.py", "samp-runs compare {runs[0].parent} {runs[1].parent}")),
+    ("python -m samp.data import source=demos.npz name=mydemos scene=scenes/cell_a.json",
+     RunElsewhere("data/test_data_import.py", "python -m samp.data import source=demos.npz name=mydemos scene=")),
 ]
 
 # The camera set docs/perception.md shows as a YAML example, used by the `camera=path/to/my_cameras.yaml` step.

@@ -124,12 +124,22 @@ def test_bad_sources_are_refused_clearly(tmp_path, scene_file):
     assert not any((tmp_path / "d").rglob("manifest.json")), "a refused import must publish nothing"
 
 
-def test_the_import_command_prints_its_summary(tmp_path, scene_file, monkeypatch):
-    from samp.data.__main__ import main
+@pytest.mark.slow
+def test_the_import_command_prints_its_summary(tmp_path, scene_file):
+    """The documented command, in a folder of its own: kept and refused counted, the refusal explained."""
+    import os
+    import subprocess
+    import sys
 
     episodes = [_uneven_line(HOME, AWAY), _uneven_line(HOME, INTO_TABLE)]
-    np.savez(tmp_path / "demos.npz", joint_positions=np.stack(episodes), scene=np.array([scene_file]))
-    monkeypatch.setenv("SAMP_DATASETS_DIR", str(tmp_path / "datasets"))
-    assert main(["import", f"source={tmp_path / 'demos.npz'}", "name=cli", "resolutions=8", "eval_problems=0",
-                 "progress=false"]) == 0
-    assert main(["import", f"source={tmp_path / 'demos.npz'}"]) == 2  # no name: a one-line error
+    np.savez(tmp_path / "demos.npz", joint_positions=np.stack(episodes))
+    env = {**os.environ, "SAMP_DATASETS_DIR": str(tmp_path / "datasets"), "OMP_NUM_THREADS": "1"}
+    cmd = f"python -m samp.data import source=demos.npz name=mydemos scene={scene_file} resolutions=8 eval_problems=0"
+    out = subprocess.run([sys.executable, *cmd.split()[1:], "progress=false"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "imported 1 of 2 trajectories (1 refused)" in out.stdout and "demos.npz#1" in out.stdout, out.stdout
+    assert "dataset mydemos@" in out.stdout
+    out = subprocess.run([sys.executable, "-m", "samp.data", "import", "source=demos.npz"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and "import needs name=" in out.stderr, out.stderr

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -219,7 +220,8 @@ def robot_yaml(cfg: RobotConfig, notes: dict, urdf_path: Path) -> str:
         lines.append(f"# Continuous joints {', '.join(notes['continuous'])} are limited to one turn, "
                      f"[{CONTINUOUS_RANGE[0]:.6f}, {CONTINUOUS_RANGE[1]:.6f}] rad.")
     if notes["held"]:
-        lines.append(f"# Movable joints outside the arm, held at 0: {', '.join(notes['held'])}.")
+        lines += textwrap.wrap(f"Movable joints outside the arm, held at 0: {', '.join(notes['held'])}.", 108,
+                               initial_indent="# ", subsequent_indent="# ")
     lines += [f"name: {flow(cfg.name)}", f"urdf: {flow(cfg.urdf)}", f"base_link: {flow(cfg.base_link)}",
               f"ee_link: {flow(cfg.ee_link)}", f"joints: {flow(cfg.joints)}", f"lower: {flow(cfg.lower)}",
               f"upper: {flow(cfg.upper)}"]
@@ -238,10 +240,8 @@ def robot_yaml(cfg: RobotConfig, notes: dict, urdf_path: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_robot(text: str, path: Path, force: bool = False) -> None:
-    """Write `text` to `path` atomically, refusing to replace an existing file unless `force`."""
-    if path.exists() and not force:
-        raise ValueError(f"{path} already exists; pass force=true to replace it, or pick another name=")
+def write_robot(text: str, path: Path) -> None:
+    """Write `text` to `path` atomically (a reader never sees half a file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(text)
@@ -351,7 +351,7 @@ def add_robot(args: list[str], summary) -> Path:
     urdf = Path(opts["urdf"]).expanduser().absolute()
     cfg, notes = propose_robot(urdf, name, path.parent, opts.get("base"), opts.get("ee"), samples, seed)
     draft = path.with_name(f".{name}.draft.yaml")  # hidden: not a robot of the folder until it is checked
-    write_robot(robot_yaml(cfg, notes, urdf), draft, force=True)
+    write_robot(robot_yaml(cfg, notes, urdf), draft)
     try:
         robot = _checked(draft)
     except Exception:

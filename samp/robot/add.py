@@ -2,7 +2,8 @@
 
 What is read from the URDF and what is chosen (docs/design.md, "Robot config"):
 
-* base_link: the URDF's root link unless `base=` names another link fixed to it;
+* base_link: the URDF's root link (or, when it is a bare frame, the first link with collision geometry
+  fixed below it) unless `base=` names another link fixed to the root;
 * ee_link: unless `ee=` names one, the tip of the longest chain of movable joints below the base; where
   that chain splits into equally long branches (a gripper's fingers) it ends at the link before the split;
 * joints: the movable joints from base_link to ee_link, with the URDF's limits (a continuous joint gets
@@ -104,7 +105,15 @@ def _gripper(urdf: URDFModel, ee: str) -> GripperConfig:
 
 
 def _base(urdf: URDFModel, base: str | None) -> str:
-    base = _link(urdf, base, "base link") if base else urdf.root
+    """`base` checked, or by default the root, or, when the root is a bare frame (a `world` without
+    collision geometry), the first link fixed below it that has some: the base is mounted on the table and
+    never checked against obstacles (samp.sim.World), so it must be the link that touches the table."""
+    if not base:
+        base = urdf.root
+        while not urdf.collisions[base] and len(kids := _children(urdf, base)) == 1 and kids[0].type == "fixed":
+            base = kids[0].child
+        return base
+    base = _link(urdf, base, "base link")
     link = base
     while (joint := urdf.parent_joint(link)) is not None:
         if joint.type != "fixed":

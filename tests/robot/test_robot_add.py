@@ -1,6 +1,7 @@
 """`python -m samp.robot add`: a robot we do not ship, from its URDF, checked against pybullet as an
-independent oracle (its own URDF loader, forward kinematics and collision shapes): a 4-joint arm of boxes
-and cylinders written here, and pybullet_data's xArm 6 with its gripper (we ship the xArm 6 without one).
+independent oracle (its own URDF loader, forward kinematics and collision shapes): a 6-joint arm of boxes
+and cylinders with continuous and revolute joints written here (six, because the expert's goals are full
+end-effector poses), and pybullet_data's xArm 6 with its gripper (we ship the xArm 6 without one).
 Then, end to end (slow): its robot SDF trained and its accuracy printed, a smoke dataset of it generated, a
 policy trained and evaluated on it, by the commands `add` prints."""
 
@@ -50,15 +51,28 @@ TOY_URDF = """<?xml version="1.0"?>
     <limit lower="ELBOW_LOWER" upper="ELBOW_UPPER" effort="10" velocity="1"/>
   </joint>
   <link name="fore">
-    <collision><origin xyz="0 0 0.17"/><geometry><cylinder radius="0.035" length="0.26"/></geometry></collision>
+    <collision><origin xyz="0 0 0.14"/><geometry><cylinder radius="0.035" length="0.2"/></geometry></collision>
   </link>
-  <joint name="wrist" type="continuous">
-    <parent link="fore"/><child link="hand"/><origin xyz="0.01 0 0.34" rpy="0.1 0 0.2"/><axis xyz="0 0 1"/>
+  <joint name="roll" type="continuous">
+    <parent link="fore"/><child link="wrist"/><origin xyz="0.01 0 0.27" rpy="0.1 0 0.2"/><axis xyz="0 0 1"/>
+  </joint>
+  <link name="wrist">
+    <collision><origin xyz="0 0 0.03"/><geometry><cylinder radius="0.03" length="0.05"/></geometry></collision>
+  </link>
+  <joint name="pitch" type="revolute">
+    <parent link="wrist"/><child link="palm"/><origin xyz="0 0 0.09"/><axis xyz="0 1 0"/>
+    <limit lower="-2.0" upper="2.0" effort="10" velocity="1"/>
+  </joint>
+  <link name="palm">
+    <collision><origin xyz="0 0 0.04"/><geometry><box size="0.05 0.05 0.05"/></geometry></collision>
+  </link>
+  <joint name="flange" type="continuous">
+    <parent link="palm"/><child link="hand"/><origin xyz="0 0 0.08"/><axis xyz="0 0 1"/>
   </joint>
   <link name="hand">
-    <collision><origin xyz="0 0 0.04"/><geometry><box size="0.1 0.04 0.06"/></geometry></collision>
+    <collision><origin xyz="0 0 0.02"/><geometry><box size="0.1 0.04 0.04"/></geometry></collision>
   </link>
-  <joint name="tool" type="fixed"><parent link="hand"/><child link="tcp"/><origin xyz="0 0 0.1"/></joint>
+  <joint name="tool" type="fixed"><parent link="hand"/><child link="tcp"/><origin xyz="0 0 0.08"/></joint>
   <link name="tcp"/>
 </robot>
 """
@@ -212,16 +226,16 @@ def test_the_yaml_is_written_and_loads(toy):
 
     robot = load_robot(toy.path, dtype=torch.float64)
     assert robot.name == "toyarm" and robot.cfg.urdf == "../urdf/toyarm.urdf"  # inside the config folder: relative
-    assert robot.joint_names == ["turn", "shoulder", "elbow", "wrist"]
-    assert (robot.base_link, robot.ee_link) == ("world", "hand")  # the root; the tip of the movable chain
-    assert robot.link_names == ["base", "column", "upper", "fore", "hand"]
-    assert robot.point_link_names == ["column", "upper", "fore", "hand"]  # the base does not move
+    assert robot.joint_names == ["turn", "shoulder", "elbow", "roll", "pitch", "flange"]
+    assert (robot.base_link, robot.ee_link) == ("base", "hand")  # below the bare root; the movable chain's tip
+    assert robot.link_names == ["base", "column", "upper", "fore", "wrist", "palm", "hand"]
+    assert robot.point_link_names == robot.link_names[1:]  # the base does not move
     assert robot.cfg.gripper.joints == [] and len(robot.points) == robot.cfg.points.count
     assert {frozenset(p) for p in robot.self_collision_exclude} >= {frozenset(("upper", "fore")), frozenset(("base", "column"))}
-    assert "robot toyarm: 4 joints, 5 collision links" in toy.stdout and f"wrote {toy.path}" in toy.stdout
+    assert "robot toyarm: 6 joints, 7 collision links" in toy.stdout and f"wrote {toy.path}" in toy.stdout
     assert "python -m samp.train experiment=robot_sdf_quick robot=toyarm" in toy.stdout
     assert f"SAMP_CONFIG_PATH={toy.out}" in toy.stdout  # the folder is not on the config path yet
-    assert "continuous joints turn, wrist" in toy.path.read_text().lower()  # the range they were given is said
+    assert "continuous joints turn, roll, flange" in toy.path.read_text().lower()  # the range they were given is said
     assert not list(toy.path.parent.glob(".*")), "the draft was left behind"
 
 
@@ -246,7 +260,7 @@ def test_home_is_free_of_self_collision_per_pybullet(toy):
     assert check_home_free(robot, toy.urdf) == []
     oracle = Oracle(toy.urdf)  # the oracle is not blind: folded onto itself, the arm touches itself
     try:
-        oracle.set(robot.joint_names, [0.0, 1.2, 2.9, 0.0])
+        oracle.set(robot.joint_names, [0.0, 1.2, 2.9, 0.0, 0.0, 0.0])
         assert oracle.contacts(robot.link_names, robot.self_collision_exclude)
     finally:
         oracle.close()
@@ -263,7 +277,7 @@ def test_a_colliding_middle_of_the_limits_gives_the_nearest_free_home(tmp_path):
     robot = load_robot(tmp_path / "robot" / "folded.yaml", dtype=torch.float64)
     oracle = Oracle(urdf)
     try:
-        oracle.set(robot.joint_names, [0.0, 0.0, 2.9, 0.0])
+        oracle.set(robot.joint_names, [0.0, 0.0, 2.9, 0.0, 0.0, 0.0])
         assert oracle.contacts(robot.link_names, robot.self_collision_exclude), "the middle should collide"
     finally:
         oracle.close()
@@ -275,7 +289,7 @@ def test_a_colliding_middle_of_the_limits_gives_the_nearest_free_home(tmp_path):
     (["urdf={tmp}/nope.urdf", "name=x"], "does not exist"),
     (["urdf={urdf}", "name=x", "ee=claw"], "end-effector link 'claw' is not a link of"),
     (["urdf={urdf}", "name=x", "base=upper"], "base link 'upper' moves with joint 'shoulder'"),
-    (["urdf={urdf}", "name=x", "ee=base"], "no movable joint between base 'world' and end effector 'base'"),
+    (["urdf={urdf}", "name=x", "ee=base"], "no movable joint between base 'base' and end effector 'base'"),
     (["urdf={urdf}", "name=panda"], "'panda' is one of samp's own robots"),
     (["urdf={urdf}", "name=taken"], "already exists; pass force=true"),
     (["urdf={urdf}", "name=../up"], "not a plain folder name"),
@@ -297,7 +311,7 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path, args, message):
 
 def test_unknown_link_lists_the_links(tmp_path):
     rc, _, stderr = run_add(f"urdf={toy_urdf(tmp_path)}", "name=x", "ee=claw", f"out={tmp_path}")
-    assert rc == 2 and "its links are: world, base, column, upper, fore, hand, tcp" in stderr
+    assert rc == 2 and "its links are: world, base, column, upper, fore, wrist, palm, hand, tcp" in stderr
 
 
 def test_the_exclusion_tool_prints_the_same_rule(robots):
@@ -326,6 +340,7 @@ def test_an_arm_from_pybullet_data_with_a_gripper(tmp_path, _isolated_cache):
     robot = load_robot(tmp_path / "robot" / "xarm6_gripper.yaml", dtype=torch.float64)
     assert robot.cfg.urdf == "pybullet_data://xarm/xarm6_with_gripper.urdf"
     assert robot.joint_names == [f"joint{i}" for i in range(1, 7)] and robot.ee_link == "xarm_gripper_base_link"
+    assert robot.base_link == "link_base"  # as in conf/robot/xarm6.yaml: the first link below the bare root
     assert {"left_finger", "right_finger"} <= set(robot.point_link_names)
     assert list(zip(robot.cfg.lower, robot.cfg.upper)) == urdf_limits(urdf, robot.joint_names)
     worst = check_fk(robot, urdf)
@@ -351,6 +366,8 @@ def test_end_to_end_robot_sdf_and_a_smoke_policy(tmp_path, _isolated_cache):
     added = _cli(env, "samp.robot", "add", f"urdf={urdf}", "name=toyarm", "samples=100")
     assert "SAMP_CONFIG_PATH=" not in added.stdout  # the folder is already on the path: plain commands
     assert "python -m samp.train experiment=robot_sdf_quick robot=toyarm" in added.stdout
+    _cli(env, "samp.robot", "show", "robot=toyarm", "configs=1")
+    assert (tmp_path / "runs" / "robot" / "toyarm" / "robot.rrd").is_file()
     _cli(env, "samp.train", "experiment=robot_sdf_quick", "robot=toyarm", *SDF_TINY.split())
     (sdf_run,) = (tmp_path / "runs" / "robot_sdf_toyarm_quick").iterdir()
     record = json.loads((sdf_run / "run.json").read_text())

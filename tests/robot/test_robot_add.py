@@ -381,6 +381,18 @@ def test_end_to_end_robot_sdf_and_a_smoke_policy(tmp_path, _isolated_cache):
     record = json.loads((run / "run.json").read_text())
     assert record["status"] == "completed" and record["dataset_id"].startswith("toyarm_smoke@")
     assert record["config"]["robot"]["name"] == "toyarm"
+    assert (run / "plots" / "summary.png").is_file()  # drawn with the run's robot (it once took the Panda)
     rate = record["metrics"]["eval/samp/val/success_rate"]
     assert 0 <= rate <= 1 and "eval/expert/val/success_rate" in record["metrics"]
     print(f"toyarm smoke policy: val success rate {rate:.2f} over {record['metrics'].get('eval/samp/val/problems', '?')} problems")
+
+
+def test_a_robot_without_its_own_robot_sdf_experiment_gets_the_generic_one():
+    """`build_missing.robot_sdf` of the quickstart policy (system.robot_sdf: robot_sdf_<robot>_quick) trains
+    a new robot's SDF with experiment=robot_sdf_quick robot=NAME; the Panda keeps its own experiment."""
+    from samp.train.prerequisites import build_overrides
+
+    assert build_overrides("robot_sdf_toyarm_quick", "toyarm") == ["experiment=robot_sdf_quick", "robot=toyarm"]
+    assert build_overrides("robot_sdf_panda_quick", "panda") == ["experiment=robot_sdf_panda_quick"]
+    assert build_overrides("robot_sdf_toyarm_nope", "toyarm") is None
+    assert build_overrides("robot_sdf_panda_quick", "toyarm") is None  # another robot's SDF is never built for it

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import os
 import textwrap
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -148,7 +149,10 @@ def propose_robot(urdf_path: Path, name: str, yaml_dir: Path, base: str | None =
 
     if not urdf_path.is_file():
         raise FileNotFoundError(f"URDF {urdf_path} does not exist")
-    urdf = parse_urdf(urdf_path.resolve())
+    try:
+        urdf = parse_urdf(urdf_path.resolve())
+    except ET.ParseError as err:
+        raise ValueError(f"{urdf_path} is not a readable URDF: {err}") from None
     base = _base(urdf, base)
     ee = _link(urdf, ee, "end-effector link") if ee else default_ee(urdf, base)
     joints = arm_joints(urdf, base, ee)
@@ -197,8 +201,8 @@ def _moved(urdf: URDFModel, link: str, base: str, arm: set[str]) -> bool:
 
 
 def _home(robot, report, mid: np.ndarray) -> tuple[list[float], str]:
-    """The middle of the limits when free of self-collision, else the free sample nearest to it (rounded
-    to 1e-4 rad, kept inside the limits, and checked again)."""
+    """The middle of the limits (to 1e-6 rad) when free of self-collision, else the free sample nearest to
+    it (to 1e-4 rad); rounded inside the limits and checked as rounded."""
     from samp.robot.bodies import LinkBodies
 
     lo, hi = robot.joint_limits.double().cpu().numpy().T
@@ -207,8 +211,9 @@ def _home(robot, report, mid: np.ndarray) -> tuple[list[float], str]:
             bodies.set_q(q)
             return not bodies.colliding_pairs(exclude=report.rows)
 
-        if free(mid):
-            return [round(float(v), 6) for v in mid], "the middle of the joint limits"
+        middle = np.clip(np.round(mid, 6), lo, hi)
+        if free(middle):
+            return [float(v) for v in middle], "the middle of the joint limits"
         order = np.argsort(np.linalg.norm(report.samples - mid, axis=1))
         for i in order[report.free[order]]:
             q = np.clip(np.round(report.samples[i], 4), lo, hi)

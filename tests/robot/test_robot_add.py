@@ -287,6 +287,7 @@ def test_a_colliding_middle_of_the_limits_gives_the_nearest_free_home(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["urdf={tmp}/nope.urdf", "name=x"], "does not exist"),
+    (["urdf={tmp}/robot/taken.yaml", "name=x"], "is not a readable URDF"),
     (["urdf={urdf}", "name=x", "ee=claw"], "end-effector link 'claw' is not a link of"),
     (["urdf={urdf}", "name=x", "base=upper"], "base link 'upper' moves with joint 'shoulder'"),
     (["urdf={urdf}", "name=x", "ee=base"], "no movable joint between base 'base' and end effector 'base'"),

@@ -294,15 +294,16 @@ def _flag(opts: dict, key: str) -> bool:
 
 def default_out() -> Path:
     """The first folder of `$SAMP_CONFIG_PATH`, else `./conf` in the current folder."""
-    first = next((e for e in os.environ.get("SAMP_CONFIG_PATH", "").split(os.pathsep) if e.strip()), None)
-    return Path(first).expanduser() if first else Path.cwd() / "conf"
+    from samp.paths import config_path
+
+    folders = config_path()
+    return folders[0] if folders else Path.cwd() / "conf"
 
 
 def _packaged_robots() -> list[str]:
-    from samp.paths import REPO_ROOT
+    from samp.paths import packaged_conf_dir
 
-    own = Path(os.environ.get("SAMP_CONF_DIR", REPO_ROOT / "conf")) / "robot"
-    return sorted(p.stem for p in own.glob("*.yaml"))
+    return sorted(p.stem for p in (packaged_conf_dir() / "robot").glob("*.yaml"))
 
 
 def _checked(path: Path):

@@ -397,3 +397,18 @@ def test_a_robot_without_its_own_robot_sdf_experiment_gets_the_generic_one():
     assert build_overrides("robot_sdf_panda_quick", "panda") == ["experiment=robot_sdf_panda_quick"]
     assert build_overrides("robot_sdf_toyarm_nope", "toyarm") is None
     assert build_overrides("robot_sdf_panda_quick", "toyarm") is None  # another robot's SDF is never built for it
+
+
+def test_out_defaults_to_the_first_config_folder_and_the_robot_is_found_by_name(tmp_path, monkeypatch):
+    """With SAMP_CONFIG_PATH set, `add` writes into its first folder, the robot loads by name like a packaged
+    one, and the commands it prints need no prefix."""
+    from samp.robot import available_robots, load_robot
+
+    mine, other = tmp_path / "mine", tmp_path / "other"
+    mine.mkdir(), other.mkdir()
+    monkeypatch.setenv("SAMP_CONFIG_PATH", f"{mine}{os.pathsep}{other}")
+    rc, stdout, stderr = run_add(f"urdf={toy_urdf(tmp_path / 'urdf')}", "name=myarm", "samples=20")
+    assert rc == 0, stderr
+    assert (mine / "robot" / "myarm.yaml").is_file() and not (other / "robot").exists()
+    assert "myarm" in available_robots() and load_robot("myarm").cfg.source_dir == str(mine / "robot")
+    assert "\n  python -m samp.train experiment=robot_sdf_quick robot=myarm\n" in stdout

@@ -223,33 +223,46 @@ def _home(robot, report, mid: np.ndarray) -> tuple[list[float], str]:
                      f"{len(report.samples)} random configurations is free; raise samples= or check the URDF's collision geometry")
 
 
+def _flow(value) -> str:
+    """One YAML value on one line (a list in flow style)."""
+    return yaml.safe_dump(value, default_flow_style=True, width=100_000).removesuffix("...\n").strip()
+
+
+def _entry(key: str, value, width: int = 110) -> str:
+    """`key: value`, a long list wrapped between items with its items aligned (as in conf/robot/*.yaml)."""
+    text = f"{key}: {_flow(value)}"
+    if len(text) <= width or not isinstance(value, list):
+        return text
+    return textwrap.fill(", ".join(_flow(v) for v in value) + "]", width, initial_indent=f"{key}: [",
+                         subsequent_indent=" " * (len(key) + 3), break_long_words=False, break_on_hyphens=False)
+
+
+def _comment(text: str) -> list[str]:
+    return textwrap.wrap(text, 108, initial_indent="# ", subsequent_indent="# ")
+
+
 def robot_yaml(cfg: RobotConfig, notes: dict, urdf_path: Path) -> str:
     """The YAML text of `cfg`, in the layout of conf/robot/panda.yaml, with comments saying what was chosen."""
-    def flow(value) -> str:
-        return yaml.safe_dump(value, default_flow_style=True, width=100_000).removesuffix("...\n").strip()
-
-    lines = [f"# {cfg.name}: written by `python -m samp.robot add` from {urdf_path.name}.",
-             "# Joints, limits and links are the URDF's; edit this file to change them (see conf/robot/panda.yaml)."]
+    lines = [*_comment(f"{cfg.name}: written by `python -m samp.robot add` from {urdf_path.name}. Joints, limits "
+                       "and links are the URDF's; edit this file to change them (see conf/robot/panda.yaml).")]
     if notes["continuous"]:
-        lines.append(f"# Continuous joints {', '.join(notes['continuous'])} are limited to one turn, "
-                     f"[{CONTINUOUS_RANGE[0]:.6f}, {CONTINUOUS_RANGE[1]:.6f}] rad.")
+        lines += _comment(f"Continuous joints {', '.join(notes['continuous'])} are limited to one turn, "
+                          f"[{CONTINUOUS_RANGE[0]:.6f}, {CONTINUOUS_RANGE[1]:.6f}] rad.")
     if notes["held"]:
-        lines += textwrap.wrap(f"Movable joints outside the arm, held at 0: {', '.join(notes['held'])}.", 108,
-                               initial_indent="# ", subsequent_indent="# ")
-    lines += [f"name: {flow(cfg.name)}", f"urdf: {flow(cfg.urdf)}", f"base_link: {flow(cfg.base_link)}",
-              f"ee_link: {flow(cfg.ee_link)}", f"joints: {flow(cfg.joints)}", f"lower: {flow(cfg.lower)}",
-              f"upper: {flow(cfg.upper)}"]
+        lines += _comment(f"Movable joints outside the arm, held at 0: {', '.join(notes['held'])}.")
+    lines += [_entry(k, getattr(cfg, k)) for k in ("name", "urdf", "base_link", "ee_link", "joints", "lower", "upper")]
     if cfg.gripper.joints:
         lines += ["gripper:  # prismatic fingers below the end effector, held open during planning",
-                  f"  joints: {flow(cfg.gripper.joints)}", f"  opening: {flow(cfg.gripper.opening)}"]
-    lines += [f"collision_links: {flow(cfg.collision_links)}", f"point_links: {flow(cfg.point_links)}",
-              f"# home: {notes['home']}, free of self-collision.", f"home: {flow(cfg.home)}",
-              f"# Adjacent links, and links touching in 95% or more of {notes['samples']} random configurations;",
-              f"# with them left out, {notes['free_share']:.0%} of those configurations are free of self-collision.",
+                  f"  joints: {_flow(cfg.gripper.joints)}", f"  opening: {_flow(cfg.gripper.opening)}"]
+    lines += [_entry("collision_links", cfg.collision_links), _entry("point_links", cfg.point_links),
+              f"# home: {notes['home']}, free of self-collision.", _entry("home", cfg.home),
+              *_comment(f"Adjacent links, and links touching in 95% or more of {notes['samples']} random "
+                        f"configurations; with them left out, {notes['free_share']:.0%} of those configurations "
+                        "are free of self-collision."),
               "self_collision_exclude:" + ("" if cfg.self_collision_exclude else " []")]
-    lines += [f"  - {flow(pair)}" for pair in cfg.self_collision_exclude]
+    lines += [f"  - {_flow(pair)}" for pair in cfg.self_collision_exclude]
     p = cfg.points
-    lines += ["points:", f"  count: {p.count}", f"  offsets: {flow(list(p.offsets))}", f"  jitter: {p.jitter}",
+    lines += ["points:", f"  count: {p.count}", f"  offsets: {_flow(list(p.offsets))}", f"  jitter: {p.jitter}",
               f"  tolerance: {p.tolerance}", f"  seed: {p.seed}"]
     return "\n".join(lines) + "\n"
 

@@ -3,9 +3,10 @@
 A wheel is built from a copy of the repository's tracked files and installed into a fresh virtual environment
 outside the clone (its dependencies are those of the test's own environment, reached through a `.pth`
 path: installing torch and the rest again would take minutes and the network). Then, in a temporary
-project folder: two scenes made of mesh files, demonstrations recorded "elsewhere" (planned here and
-densified, plus one that passes through an obstacle), imported; a user experiment trained twice, evaluated
-again and compared, all through the console scripts. Nothing may be written inside the clone or into
+project folder: a robot added from its URDF (a copy of pybullet_data's Panda under a name of its own, so
+that its robot SDF is trained here), two scenes made of mesh files, demonstrations recorded "elsewhere"
+(planned here and densified, plus one that passes through an obstacle), imported; a user experiment trained
+twice, evaluated again and compared, all through the console scripts. Nothing may be written inside the clone or into
 site-packages.
 """
 
@@ -30,11 +31,14 @@ EXPERIMENT = """# @package _global_
 # My policy on the demonstrations I recorded in my cells.
 defaults:
   - quickstart
+  - override /robot: myarm
 name: my_policy
 datamodule:
   dataset: mydemos
 build_missing:
   dataset: false
+evaluation:
+  benchmark: null
 """
 # Shrunk as tests/test_readme.py shrinks training: a tiny robot SDF, a few batches, one problem, no benchmark.
 TINY = ("datamodule.n_e=16 datamodule.val_samples=50 trainer.max_epochs=1 +trainer.limit_train_batches=2 "
@@ -47,7 +51,7 @@ from samp.expert.planner import plan_scene
 from samp.expert.trajectory import resample
 from samp.robot import load_robot
 from samp.scene.files import load_scene_file
-robot = load_robot("panda")
+robot = load_robot("myarm")
 demos, scene_of = [], []
 for k, name in enumerate(["scenes/cell_a.json", "scenes/cell_b.json"]):
     results = plan_scene(robot, load_scene_file("conf/" + name), 3, seed=k)
@@ -124,11 +128,18 @@ def test_bring_your_own_walk_through(installed, tmp_path):
     other["obstacles"][1]["pose"]["position"] = [0.35, -0.45, 0.15]
     (project / "conf" / "scenes" / "cell_b.json").write_text(json.dumps(other))
     (project / "conf" / "experiment" / "my_policy.yaml").write_text(EXPERIMENT)
+    import pybullet_data
+
+    shutil.copytree(Path(pybullet_data.getDataPath()) / "franka_panda", project / "robots" / "franka_panda")
     env = {**env, "SAMP_CONFIG_PATH": str(project / "conf")}
+    out = _run("samp-robot add urdf=robots/franka_panda/panda.urdf name=myarm", project, env)
+    assert (project / "conf" / "robot" / "myarm.yaml").is_file(), out
+    assert "samp.train experiment=robot_sdf_quick robot=myarm" in out, out
 
     (project / "record.py").write_text(RECORD)
     count = int(_run("python record.py", project, env).strip().splitlines()[-1])
-    out = _run("samp-data import source=demos.npz name=mydemos resolutions=16 eval_problems=1 progress=false",
+    out = _run("samp-data import source=demos.npz name=mydemos robot=myarm resolutions=16 eval_problems=1 "
+               "progress=false",
                project, env)
     assert f"imported {count - 1} of {count} trajectories (1 refused)" in out, out
     assert "demos.npz#" in out and "obstacle 'table'" in out and "recorded step" in out, out
@@ -139,6 +150,7 @@ def test_bring_your_own_walk_through(installed, tmp_path):
     _run(f"samp-train experiment=my_policy seed=1 {TINY}", project, env)
     runs = sorted((project / "runs" / "my_policy").glob("*/run.json"))
     assert len(runs) == 2, runs
+    assert list((project / "runs" / "robot_sdf_myarm_quick").glob("*/run.json")), "the robot's own SDF was not built"
     record = json.loads(runs[0].read_text())
     assert f"mydemos@{manifest['id']}" in json.dumps(record), "the run must name the imported dataset it trained on"
     _run(f"samp-eval run={runs[0].parent} problems=1 splits=[val] benchmark=null record=false overwrite=true",

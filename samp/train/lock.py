@@ -25,10 +25,10 @@ def resolve_inputs(overrides: list[str]) -> dict:
     """The exact inputs of the training config composed from `overrides`, as they resolve now:
     {"datasets": {name: NAME@ID}, "robot_sdf": {name: NAME@ARTIFACT_ID}}."""
     from samp.train.config import compose_train_config
-    from samp.train.recipe import repo_path
+    from samp.train.recipe import _repo_path
 
     cfg = compose_train_config(list(overrides))
-    root = repo_path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
+    root = _repo_path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
     out: dict = {k: {} for k in KINDS}
     refs = [str(cfg.datamodule.dataset)] if cfg.datamodule.get("dataset") is not None else []
     if (cfg.get("evaluation") or {}).get("benchmark"):
@@ -44,7 +44,7 @@ def resolve_inputs(overrides: list[str]) -> dict:
         from samp.robot_sdf.artifact import ARTIFACT_FILE, artifact_id
         from samp.train.prerequisites import resolve_robot_sdf
 
-        path = resolve_robot_sdf(str(sdf), repo_path(cfg.paths.runs_dir), lock=False)
+        path = resolve_robot_sdf(str(sdf), _repo_path(cfg.paths.runs_dir), lock=False)
         artifact = path / ARTIFACT_FILE if path.is_dir() else path
         out["robot_sdf"][str(sdf)] = f"{sdf}@{artifact_id(artifact)}"
     return out

@@ -24,11 +24,11 @@ from samp.train.config import compose_train_config
 
 __all__ = ["train"]
 
-def repo_path(path: str) -> Path:
-    from samp.paths import REPO_ROOT
+def _repo_path(path: str) -> Path:
+    from samp.paths import project_dir
 
     p = Path(path).expanduser()
-    return p if p.is_absolute() else REPO_ROOT / p
+    return p if p.is_absolute() else project_dir() / p
 
 
 def _resume_overrides(overrides: list[str], resume: str | Path | None = None) -> list[str]:
@@ -47,7 +47,7 @@ def _resume_overrides(overrides: list[str], resume: str | Path | None = None) ->
         path = OverridesParser.create().parse_override(given[-1]).value()  # unquoted, as Hydra reads it
     if path in (None, ""):
         return overrides
-    folder = RunFolder(repo_path(str(path)))
+    folder = RunFolder(_repo_path(str(path)))
     # trust_checkpoint is never carried over: trusting a file is a decision for each load
     recorded = [o for o in folder.read().get("overrides", [])
                 if override_key(o) not in ("resume", "run_dir", "trust_checkpoint")]
@@ -66,11 +66,11 @@ def _open_folder(cfg):
         if not path:
             raise ValueError("DDP ranks started apart (srun, torchrun) must share one run folder: pass run_dir=DIR, "
                              "e.g. run_dir=runs/NAME/$SLURM_JOB_ID")
-        repo_path(path).mkdir(parents=True, exist_ok=True)
-        folder = RunFolder(repo_path(path))
+        _repo_path(path).mkdir(parents=True, exist_ok=True)
+        folder = RunFolder(_repo_path(path))
         return folder, folder.last_checkpoint if folder.last_checkpoint.is_file() else None
     if cfg.resume:
-        folder = RunFolder(repo_path(cfg.resume))
+        folder = RunFolder(_repo_path(cfg.resume))
         if not folder.last_checkpoint.is_file():
             raise FileNotFoundError(f"cannot resume {folder.path}: it has no {folder.last_checkpoint.name} in "
                                     f"checkpoints/ (the run stopped before its first checkpoint); start it again")
@@ -79,9 +79,9 @@ def _open_folder(cfg):
         check_recorded_hash(folder.last_checkpoint)  # before the run is marked running again
         return folder, folder.last_checkpoint
     if cfg.run_dir:  # a sweep member's folder, or one the user names
-        folder = RunFolder.create_at(repo_path(cfg.run_dir))
+        folder = RunFolder.create_at(_repo_path(cfg.run_dir))
     else:
-        folder = RunFolder.create(repo_path(cfg.paths.runs_dir), cfg.name)
+        folder = RunFolder.create(_repo_path(cfg.paths.runs_dir), cfg.name)
     os.environ[RUN_DIR_ENV] = str(folder.path)
     return folder, None
 
@@ -128,8 +128,8 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
             cfg.run_dir = str(run_dir)
         if resume is not None:
             cfg.resume = str(resume)
-        cfg.paths.runs_dir = str(repo_path(cfg.paths.runs_dir))
-        cfg.paths.datasets_dir = str(repo_path(cfg.paths.datasets_dir))
+        cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
+        cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
         prepare(cfg)  # before this run's folder exists: a robot SDF built here is a run of its own
     folder, ckpt = _open_folder(cfg)
     with open_dict(cfg):

@@ -6,6 +6,8 @@ dataset of that name exists."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import re
@@ -41,6 +43,17 @@ def _cli(module: str, *args: str, cwd: Path | None = None, prelude: str | None =
     if popen:
         return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=_env(**env), cwd=cwd)
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=_env(**env), cwd=cwd)
+
+
+def _data(*args: str) -> subprocess.CompletedProcess:
+    """`python -m samp.data ARGS` in this process (its `main`, output captured): the same code as the command
+    line without a new interpreter's start, for the many short pushes and pulls."""
+    from samp.data.__main__ import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(args))
+    return subprocess.CompletedProcess(["samp.data", *args], code, out.getvalue(), err.getvalue())
 
 
 def _ok(proc: subprocess.CompletedProcess) -> str:
@@ -111,16 +124,16 @@ def _blob(remote: str, sha256: str) -> str:
 def test_push_delete_pull_gives_the_same_bytes_and_id(smoke, remote, tmp_path):
     _, ident, hashes = smoke
     root = _copy(smoke, tmp_path)
-    out = _ok(_cli("samp.data", "push", f"dataset=smoke@{ident}", f"remote={remote}", f"root={root}"))
+    out = _ok(_data("push", f"dataset=smoke@{ident}", f"remote={remote}", f"root={root}"))
     assert f"pushed {remote}/datasets/smoke@{ident}: {len(hashes)} files uploaded, 0 already there" in out, out
-    again = _ok(_cli("samp.data", "push", "smoke", f"remote={remote}", f"root={root}"))
+    again = _ok(_data("push", "smoke", f"remote={remote}", f"root={root}"))
     assert f"0 files uploaded, {len(hashes)} already there" in again, again
     shutil.rmtree(root / "smoke")
-    out = _ok(_cli("samp.data", "pull", f"dataset=smoke@{ident[:6]}", f"remote={remote}", f"root={root}"))
+    out = _ok(_data("pull", f"dataset=smoke@{ident[:6]}", f"remote={remote}", f"root={root}"))
     assert f"pulled smoke@{ident} into {root / 'smoke' / ident}: {len(hashes)} files downloaded" in out, out
     assert _hashes(root / "smoke" / ident) == hashes
     assert sorted(p.name for p in (root / "smoke").iterdir()) == [ident], "no staging folder is left behind"
-    _ok(_cli("samp.data", "verify", f"smoke@{ident}", f"root={root}"))
+    _ok(_data("verify", f"smoke@{ident}", f"root={root}"))
 
 
 def test_damaged_remote_file_is_refused_naming_it(smoke, remote, tmp_path):
@@ -128,23 +141,23 @@ def test_damaged_remote_file_is_refused_naming_it(smoke, remote, tmp_path):
 
     _, ident, hashes = smoke
     root = _copy(smoke, tmp_path)
-    _ok(_cli("samp.data", "push", f"smoke@{ident}", f"remote={remote}", f"root={root}"))
+    _ok(_data("push", f"smoke@{ident}", f"remote={remote}", f"root={root}"))
     shutil.rmtree(root / "smoke")
     fs, blob = fsspec.core.url_to_fs(_blob(remote, hashes["scene_0001.mcap"]))
     data = bytearray(fs.cat_file(blob))
     data[len(data) // 2] ^= 0xFF
     fs.pipe_file(blob, bytes(data))
-    proc = _cli("samp.data", "pull", f"dataset={remote}/datasets/smoke@{ident}", f"root={root}")
+    proc = _data("pull", f"dataset={remote}/datasets/smoke@{ident}", f"root={root}")
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert re.search(rf"remote file scene_0001\.mcap of {re.escape(remote)}/datasets/smoke@{ident} is damaged: sha256 "
                      rf"expected {hashes['scene_0001.mcap']}, actual [0-9a-f]{{64}}", proc.stderr), proc.stderr
     assert "nothing was published locally" in proc.stderr and "with force=true" in proc.stderr
     assert _published(root, "smoke") == [], "a damaged pull publishes nothing"
-    again = _ok(_cli("samp.data", "push", f"smoke@{ident}", f"remote={remote}", f"root={smoke[0]}"))
+    again = _ok(_data("push", f"smoke@{ident}", f"remote={remote}", f"root={smoke[0]}"))
     assert f"0 files uploaded, {len(hashes)} already there" in again, "a damaged blob of the right size looks whole"
-    forced = _ok(_cli("samp.data", "push", f"smoke@{ident}", f"remote={remote}", "force=true", f"root={smoke[0]}"))
+    forced = _ok(_data("push", f"smoke@{ident}", f"remote={remote}", "force=true", f"root={smoke[0]}"))
     assert f"{len(hashes)} files uploaded, 0 already there" in forced, forced
-    _ok(_cli("samp.data", "pull", f"smoke@{ident}", f"remote={remote}", f"root={root}"))
+    _ok(_data("pull", f"smoke@{ident}", f"remote={remote}", f"root={root}"))
     assert _hashes(root / "smoke" / ident) == hashes, "the pull that failed continues, now from intact blobs"
     shutil.rmtree(root / "smoke")
     index = f"{remote}/datasets/smoke@{ident}/index.json"  # an edited index is refused too
@@ -152,7 +165,7 @@ def test_damaged_remote_file_is_refused_naming_it(smoke, remote, tmp_path):
     edited = json.loads(fs.cat_file(path))
     edited["files"]["scene_0001.mcap"]["sha256"] = file_sha256(Path(__file__))
     fs.pipe_file(path, json.dumps(edited).encode())
-    proc = _cli("samp.data", "pull", f"smoke@{ident}", f"remote={remote}", f"root={root}")
+    proc = _data("pull", f"smoke@{ident}", f"remote={remote}", f"root={root}")
     assert proc.returncode == 2 and f"{index} was changed after it was pushed" in proc.stderr, proc.stderr
 
 

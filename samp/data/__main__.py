@@ -20,8 +20,10 @@ USAGE = """usage: python -m samp.data COMMAND [key=value ...]
          [eval_problems=4] [max_jump=0.5] [key=observation.state] [columns=i,j,...] [root=DIR]
                                         trajectories recorded elsewhere (.npz, HDF5, a LeRobot folder) as a
                                         dataset: checked like the expert's, resampled, the refused counted
-  push dataset=REF remote=URL [force=true] [root=DIR]   upload a dataset to a remote (file://, s3://, hf://)
-  pull dataset=NAME@ID remote=URL [root=DIR]      download one, every file checked (also dataset=URL/datasets/NAME@ID)
+  push dataset=REF remote=URL [force=true] [root=DIR]
+                                        upload a dataset to a remote (file://, s3://, hf://)
+  pull dataset=NAME@ID remote=URL [root=DIR]
+                                        download one, each file checked (or dataset=<remote>/datasets/NAME@ID)
 For generate and merge, dataset=NAME is a spec, conf/dataset/NAME.yaml (`+dataset=NAME` is read the same),
 and dataset.KEY=VALUE changes one of its settings. Elsewhere REF is NAME (the newest), NAME@ID (an id
 prefix is enough) or a dataset folder, and may be given bare: `python -m samp.data verify quickstart`.

@@ -108,3 +108,22 @@ def test_a_sweep_hands_its_lock_to_its_members(tmp_path, monkeypatch):
     assert Path(os.environ["SAMP_LOCK"]) == (tmp_path / "samp.lock").resolve()
     monkeypatch.chdir(root)
     assert resolve_ref("toy", root) == older
+
+
+@pytest.mark.slow  # composes the training config (seconds)
+def test_lock_flag_writes_the_newest_ids_and_keeps_other_names(tmp_path, monkeypatch, capsys):
+    from samp.train.cli import main
+
+    root = tmp_path / "datasets"
+    _dataset(root, "toy", b"a")
+    newer = _dataset(root, "toy", b"b")
+    lock = _lock(tmp_path / "team.lock", {"other": "other@0123456789ab"})
+    monkeypatch.chdir(tmp_path)
+    args = ["experiment=mpnet", "datamodule.dataset=toy", f"datamodule.root={root}", "evaluation.benchmark=null"]
+    assert main([*args, f"--lock={lock}"]) == 0
+    assert f"toy -> toy@{newer.name}" in capsys.readouterr().out
+    written = json.loads(lock.read_text())
+    assert written["datasets"] == {"other": "other@0123456789ab", "toy": f"toy@{newer.name}"}
+    assert written["overrides"] == args and not (tmp_path / "samp.lock").exists()
+    assert main([*args, "-m", "--lock"]) == 2
+    assert "--lock pins the inputs of one config" in capsys.readouterr().err

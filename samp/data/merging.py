@@ -39,7 +39,7 @@ import numpy as np
 from samp.names import SPLIT_ALIASES, SPLITS
 
 __all__ = ["EVAL_PREFIX", "HEARTBEAT_S", "MERGING", "STALE_AFTER_S", "TRASH", "WAIT_TIMEOUT_S", "MergeLockTimeout",
-           "build_manifest", "link_or_copy", "merge_lock", "move_aside", "remove_trash"]
+           "build_manifest", "held", "link_or_copy", "lock_content", "merge_lock", "move_aside", "remove_trash"]
 
 EVAL_PREFIX = "eval_"  # the evaluation problems' times in a sidecar: eval_planning_time, ...
 
@@ -65,6 +65,14 @@ def merge_lock(work: Path, name: str, timeout: float = WAIT_TIMEOUT_S):
     if content is None:
         yield
         return
+    with held(lock, content):
+        yield
+
+
+@contextmanager
+def held(lock: Path, content: bytes):
+    """Keep the lock file `lock` (created holding `content`) refreshed for the block, then remove it if it
+    is still ours."""
     stop = threading.Event()
     beat = threading.Thread(target=_heartbeat, args=(lock, content, stop), name="merge-lock-heartbeat", daemon=True)
     beat.start()
@@ -84,7 +92,7 @@ _HOST = platform.node()
 _LEGACY = re.compile(rb"process (\d+) on (\S+)")  # what the flock lock of earlier versions wrote
 
 
-def _lock_content() -> bytes:
+def lock_content() -> bytes:
     now = time.time()
     return (json.dumps({"host": _HOST, "pid": os.getpid(), "started": now,
                         "started_utc": datetime.fromtimestamp(now, timezone.utc).isoformat(timespec="seconds"),
@@ -98,7 +106,7 @@ def _acquire(lock: Path, name: str, timeout: float) -> bytes | None:
     while True:
         if not lock.parent.is_dir():
             return None
-        content = _lock_content()  # its start time: now
+        content = lock_content()  # its start time: now
         try:
             if _create(lock, content):
                 return content

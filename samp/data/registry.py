@@ -22,7 +22,8 @@ import shutil
 from datetime import datetime, timezone
 from pathlib import Path
 
-from samp.paths import check_name, file_sha256, inside
+from samp.cli import paste
+from samp.paths import check_name, env_folder, file_sha256, inside
 
 __all__ = ["FORMAT_VERSION", "MANIFEST", "READABLE_VERSIONS", "SCENE_FILE_VERSION", "DatasetError", "content_id",
            "datasets_root", "file_problems", "finalize_dataset", "list_datasets", "manifest_hash", "read_manifest",
@@ -46,10 +47,8 @@ class DatasetError(ValueError):
 
 
 def datasets_root() -> Path:
-    """`$SAMP_DATASETS_DIR`, else `datasets/` in the project folder (`samp.paths.project_dir`)."""
-    from samp.paths import project_dir
-
-    return Path(os.environ.get("SAMP_DATASETS_DIR", project_dir() / "datasets"))
+from samp.cli import paste
+from samp.paths import check_name, env_folder, file_sha256, inside
 
 
 def content_id(files: dict[str, str]) -> str:
@@ -70,7 +69,7 @@ def recreate_hint(folder: Path, manifest: dict | None = None, how: str | None = 
     """What to do about a damaged dataset: restore it, or make it again (`how`; default: generate it from
     its spec)."""
     name = (manifest or {}).get("name") or folder.parent.name
-    how = how or (f"generate it again with `python -m samp.data generate dataset={name}` (the spec it was made "
+    how = how or (f"generate it again with `{paste('python -m samp.data generate', dataset=name)}` (the spec it was made "
                   f"from is under 'config' in its {MANIFEST})")
     return f"restore {folder} from a copy, or delete it and {how}"
 

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from samp.names import N_E_MAX
 from samp.paths import cache_dir
 from samp.scene.model import Scene, check_bounds
 
@@ -22,8 +23,10 @@ __all__ = ["anchor_points", "anchor_grid", "grid_coords", "sample_grid"]
 
 
 def _check_n(n_e) -> int:
-    if not isinstance(n_e, (int, np.integer)) or isinstance(n_e, bool) or n_e < 2:
-        raise ValueError(f"n_e (anchors per axis) must be an integer >= 2, got {n_e!r}")
+    if not isinstance(n_e, (int, np.integer)) or isinstance(n_e, bool) or not 2 <= n_e <= N_E_MAX:
+        raise ValueError(f"n_e (anchors per axis) must be an integer in [2, {N_E_MAX}], got {n_e!r}"
+                         + (f" (a grid of {n_e}^3 anchors would need {4 * n_e ** 3 / 1e9:.3g} GB)"
+                            if isinstance(n_e, int) and n_e > N_E_MAX else ""))
     return int(n_e)
 
 

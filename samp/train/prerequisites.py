@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from samp.cli import paste
+
 __all__ = ["build_overrides", "prepare", "resolve_robot_sdf"]
 
 
@@ -81,7 +83,7 @@ def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
     other = f" (runs of other networks there, not taken by name: {_listing(found)})" if found else ""
     raise FileNotFoundError(f"no robot SDF {ref!r}: not a file or folder, and no completed run with {ARTIFACT_FILE} "
                             f"of the network {kind or 'it trains'} under {folder}{other}. Train one with "
-                            f"`python -m samp.train experiment=robot_sdf_{robot}`, pass build_missing.robot_sdf=true, or "
+                            f"`{paste('python -m samp.train', experiment=f'robot_sdf_{robot}')}`, pass build_missing.robot_sdf=true, or "
                             "set system.robot_sdf to a run folder, an artifact, or NAME@ID")
 
 

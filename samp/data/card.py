@@ -27,8 +27,8 @@ def dataset_card(manifest: dict) -> str:
     lines = [
         f"# Dataset card: {ref}", "",
         f"Created {manifest.get('created', '?')} by samp {code.get('package', '?')} (git {code.get('git_commit', '?')}"
-        f"{', with uncommitted changes' if code.get('git_dirty') else ''}), manifest format "
-        f"{manifest.get('format_version', '?')}.", "",
+        f"{', with uncommitted changes' if code.get('git_dirty') else ''}); scene files of format "
+        f"{manifest.get('scene_file_version', '?')}, manifest format {manifest.get('format_version', '?')}.", "",
         "## What it holds", "",
         f"- robot: `{robot.get('name', '?')}` (asset hash `{str(robot.get('asset_hash', '?'))[:16]}...`)",
         f"- scenes: {counts.get('scenes', '?')} ({counts.get('train_scenes', 0)} train, {counts.get('val_scenes', 0)} val, "

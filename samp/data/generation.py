@@ -41,7 +41,7 @@ from samp.data.merging import (EVAL_PREFIX, MERGING, MergeLockTimeout, build_man
                                 move_aside, remove_trash)
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
-from samp.data.workfolder import SIDECAR, clear_stale, generation_lock, unfinished, unique_tmp
+from samp.data.workfolder import SIDECAR, clear_stale, generation_lock, removed_on_error, unfinished, unique_tmp
 
 __all__ = ["GenerationError", "GenerationInterrupted", "generate", "merge", "work_dir"]
 
@@ -204,12 +204,13 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         # The sidecar first: a scene counts as done when its MCAP file exists (renamed into place last).
         _write_json(out / (job.file + SIDECAR), sidecar)
         t0 = time.perf_counter()
-        write_scene_file(out / job.file, SceneRecord(
-            scene, job.index, job.split, list(robot.joint_names),
-            _file_metadata(spec, job, robot.asset_hash, config_hash),
-            grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
-            eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
-            poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
+        with removed_on_error(out / (job.file + ".tmp")):  # a full disk leaves no partial file behind
+            write_scene_file(out / job.file, SceneRecord(
+                scene, job.index, job.split, list(robot.joint_names),
+                _file_metadata(spec, job, robot.asset_hash, config_hash),
+                grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
+                eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
+                poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
         stages["write"] = time.perf_counter() - t0
         _write_json(out / (job.file + SIDECAR), sidecar)  # again, with the writing time
         return sidecar
@@ -235,8 +236,9 @@ def _stacked(trajectories: list[np.ndarray], n: int) -> np.ndarray:
 def _write_json(path: Path, data: dict, shared: bool = False) -> None:
     """Write `data` to `path` atomically; `shared`: a file several processes may write (a unique temporary)."""
     tmp = unique_tmp(path) if shared else path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
-    tmp.replace(path)
+    with removed_on_error(tmp):
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
+        tmp.replace(path)
 
 
 # ------------------------------------------------------------------------------------------ shards
@@ -377,8 +379,7 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
     published dataset (the next finds its id), or a `.removed-*` folder (the next removes it)."""
     from samp.provenance import code_version, package_versions
 
-    missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
-    missing = missing or [j.index for j in unfinished(work, jobs, spec.name)]  # a damaged scene is never merged
+    missing = [j.index for j in unfinished(work, jobs, spec.name)]  # a damaged scene is removed, never merged
     if missing:
         raise GenerationError(f"cannot merge {spec.name!r}: {len(missing)} of {len(jobs)} scenes are not generated "
                               f"yet (indices {missing[:20]}{' ...' if len(missing) > 20 else ''}) in {work}; run "
@@ -394,7 +395,7 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
         hashes = {s.get("robot_asset_hash") for s in sidecars}
         asset = next(iter(hashes)) if len(hashes) == 1 and None not in hashes else _asset_hash(spec.robot)
         manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, asset, sidecars, parents=[])
-        manifest.update(code_version=code_version(), versions=package_versions())
+        manifest.update(code_version=code_version(), versions=package_versions(), scene_file_version=SCENE_FILE_VERSION)
         dest = finalize_dataset(tmp, spec.name, manifest, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

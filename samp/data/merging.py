@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from samp.names import SPLIT_ALIASES, SPLITS
+from samp.provenance import process_gone
 
 __all__ = ["EVAL_PREFIX", "HEARTBEAT_S", "MERGING", "STALE_AFTER_S", "TRASH", "WAIT_TIMEOUT_S", "MergeLockTimeout",
            "build_manifest", "held", "link_or_copy", "lock_content", "merge_lock", "move_aside", "remove_trash"]
@@ -187,42 +188,10 @@ def _stale(holder: dict, age: float) -> str | None:
     pid = holder.get("pid")
     if holder.get("host") == _HOST and isinstance(pid, int):
         started = holder.get("started")
-        return _gone(pid, started if isinstance(started, (int, float)) else None)
+        return process_gone(pid, started if isinstance(started, (int, float)) else None)
     if age > STALE_AFTER_S:
         return f"its lock file was last refreshed {age:.0f} s ago (stale after {STALE_AFTER_S:.0f} s)"
     return None
-
-
-def _gone(pid: int, started: float | None) -> str | None:
-    """Why process `pid` of this host is not the lock's holder any more, or None while it may be."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return "that process is gone"
-    except PermissionError:  # alive, another user's
-        pass
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:  # gone meanwhile, or no /proc: taken as alive until the next look
-        return None
-    fields = stat[stat.rindex(")") + 2:].split()
-    if fields[0] in ("Z", "X"):
-        return "that process is gone (a zombie)"
-    if started is not None:
-        born = _boot_time() + int(fields[19]) / os.sysconf("SC_CLK_TCK")
-        if born > started + 2.0:  # the clock-tick start time of /proc is good to a second
-            return "that process is gone (its process id now belongs to a younger process)"
-    return None
-
-
-_BOOT: list[float] = []
-
-
-def _boot_time() -> float:
-    if not _BOOT:
-        lines = Path("/proc/stat").read_text().splitlines()
-        _BOOT.append(float(next(line.split()[1] for line in lines if line.startswith("btime "))))
-    return _BOOT[0]
 
 
 def _take_over(lock: Path, stale: bytes, content: bytes, warning: str) -> None:

@@ -182,6 +182,27 @@ def check_overrides(overrides: list[str]) -> None:
         if key in RETIRED_KEYS:
             raise ValueError(f"{override!r}: {key!r} is retired; use {RETIRED_KEYS[key]} "
                              "(dataset.val_scenes=N dataset.test_scenes=M)")
+        _check_key(override)
+
+
+def _check_key(override: str) -> None:
+    """Refuse a misspelt key (`workrs=2`, `dataset.train_scene=3`) with the valid keys and the closest one;
+    Hydra would only suggest appending it with `+`. Hydra's own keys and options are left to Hydra."""
+    import difflib
+
+    key, eq, _ = override.partition("=")
+    if not eq or key.startswith(("+", "~", "-", "hydra")) or "/" in key or key == "dataset":
+        return
+    head, _, leaf = key.partition(".")
+    if head == "dataset":
+        valid, name, shown = sorted(DatasetSpec.__dataclass_fields__), leaf.split(".")[0], "spec keys (dataset.KEY)"
+    else:
+        valid = [k for k in OmegaConf.load(conf_dir() / "data.yaml") if k not in ("defaults", "hydra")]
+        name, shown = key, "settings"
+    if "." in key and head != "dataset" or name not in valid:
+        close = [f"dataset.{c}" if head == "dataset" else c for c in difflib.get_close_matches(name, valid, n=1)]
+        raise ValueError(f"unknown key {key!r}{f' (did you mean {close[0]!r}?)' if close else ''}; {shown}: "
+                         f"{', '.join(valid)}{'' if head == 'dataset' else ', dataset=NAME, dataset.KEY=VALUE'}")
 
 
 def _check(spec: DatasetSpec) -> None:

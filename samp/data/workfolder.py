@@ -24,7 +24,7 @@ from pathlib import Path
 
 from samp.data.merging import _create, _describe, _read, _stale, _take_over, held, lock_content
 
-__all__ = ["SIDECAR", "GenerationBusy", "clear_stale", "damaged_scene", "generation_lock", "unfinished"]
+__all__ = ["SIDECAR", "GenerationBusy", "clear_stale", "damaged_scene", "generation_lock", "removed_on_error", "unfinished", "unique_tmp"]
 
 SIDECAR = ".json"  # a scene file's sidecar: <file>.json, its wall-clock planner times and counts
 TMP_STALE_S = 60.0  # a shared spec.json temporary older than this was left by a killed writer
@@ -136,6 +136,22 @@ def unfinished(work: Path, jobs: list, label: str) -> list:
             sidecar.unlink(missing_ok=True)
             todo.append(job)
     return todo
+
+
+@contextmanager
+def removed_on_error(tmp: Path):
+    """Remove the temporary file `tmp` when the block fails (a full disk, Ctrl-C): no partial output stays. An
+    OSError of a write names no file (a full disk while writing); it is raised again naming `tmp`."""
+    try:
+        yield
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        if err.filename is None:
+            raise OSError(err.errno, err.strerror, str(tmp)) from None
+        raise
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def unique_tmp(path: Path) -> Path:

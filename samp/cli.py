@@ -164,8 +164,10 @@ def user_error(err: BaseException) -> str | None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    if isinstance(err, (HydraException, OmegaConfBaseException, ValueError)):  # Hydra's missing config is an IOError
+        return str(err)
     if not isinstance(err, OSError):
-        return str(err) if isinstance(err, (HydraException, OmegaConfBaseException, ValueError)) else None
+        return None
     if err.errno is None or err.errno not in _ENVIRONMENT:
         return str(err) if isinstance(err, FileNotFoundError) else None  # our own FileNotFoundErrors say it all
     what, todo = _ENVIRONMENT[err.errno]

@@ -168,8 +168,10 @@ def user_error(err: BaseException) -> str | None:
         return str(err)
     if not isinstance(err, OSError):
         return None
-    if err.errno is None or err.errno not in _ENVIRONMENT:
-        return str(err) if isinstance(err, FileNotFoundError) else None  # our own FileNotFoundErrors say it all
+    if err.errno is None:  # raised by samp itself (a missing config folder, SAMP_HOME a file): its message says it all
+        return str(err)
+    if err.errno not in _ENVIRONMENT:
+        return None
     what, todo = _ENVIRONMENT[err.errno]
     paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None) or "(a path not given)"
     return f"{what} {paths} ({err.strerror}); {todo}"

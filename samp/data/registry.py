@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 from datetime import datetime, timezone
 from pathlib import Path
@@ -47,8 +46,10 @@ class DatasetError(ValueError):
 
 
 def datasets_root() -> Path:
-from samp.cli import paste
-from samp.paths import check_name, env_folder, file_sha256, inside
+    """`$SAMP_DATASETS_DIR`, else `datasets/` in the project folder (`samp.paths.project_dir`)."""
+    from samp.paths import project_dir
+
+    return env_folder("SAMP_DATASETS_DIR", lambda: project_dir() / "datasets")
 
 
 def content_id(files: dict[str, str]) -> str:

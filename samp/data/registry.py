@@ -39,6 +39,7 @@ SCENE_FILE_VERSION = 3
 MANIFEST = "manifest.json"
 MANIFEST_HASH = "manifest_sha256"
 ID_LENGTH = 12
+MAX_MANIFEST_BYTES = 256 << 20  # a manifest is read whole; the paper's dataset's is a few MB
 
 
 class DatasetError(ValueError):
@@ -124,6 +125,9 @@ def read_manifest(folder: Path, check_sizes: bool = True) -> dict:
     path = folder / MANIFEST
     if not path.is_file():
         raise DatasetError(f"{folder} is not a dataset: it has no {MANIFEST}")
+    if path.stat().st_size > MAX_MANIFEST_BYTES:  # read whole: a size no dataset of ours comes near
+        raise DatasetError(f"{path} has {path.stat().st_size} bytes, more than the {MAX_MANIFEST_BYTES} a manifest "
+                           f"may have; it is not a samp manifest. {recreate_hint(folder)}")
     try:
         manifest = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as err:

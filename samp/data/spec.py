@@ -28,6 +28,7 @@ from omegaconf.errors import ConfigKeyError, ValidationError
 
 from samp.expert.config import ExpertConfig, load_expert_config
 from samp.expert.seeding import derive_seed
+from samp.names import N_E_MAX
 from samp.paths import conf_dir
 from samp.scene.registry import _load_config as load_generator_config
 
@@ -249,8 +250,8 @@ def _check(spec: DatasetSpec) -> None:
     require(not unknown, f"unknown scene generators {unknown}; available: {available_generators()}")
     stray = sorted(set(spec.generator_overrides) - set(spec.generators))
     require(not stray, f"generator_overrides for generators not in `generators`: {stray}")
-    require(len(spec.resolutions) >= 1 and all(2 <= n <= 512 for n in spec.resolutions),
-            f"resolutions must list anchor counts per axis in [2, 512], got {spec.resolutions}")
+    require(len(spec.resolutions) >= 1 and all(2 <= n <= N_E_MAX for n in spec.resolutions),
+            f"resolutions must list anchor counts per axis in [2, {N_E_MAX}], got {spec.resolutions}")
     require(len(set(spec.resolutions)) == len(spec.resolutions), f"resolutions has duplicates: {spec.resolutions}")
     spec.expert_config()  # raises with the expert config's own message
 

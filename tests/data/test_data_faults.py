@@ -266,3 +266,15 @@ def test_the_card_says_the_scene_file_format(made):
     card = (made[0] / "CARD.md").read_text()
     assert f"scene files of format {SCENE_FILE_VERSION}, manifest format 2" in card
     assert read_manifest(made[0])["scene_file_version"] == SCENE_FILE_VERSION == 3
+
+
+def test_a_manifest_larger_than_the_limit_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    import samp.data.registry as registry
+    from samp.data import DatasetError
+
+    folder = tmp_path / "big" / "0123456789ab"
+    folder.mkdir(parents=True)
+    (folder / "manifest.json").write_text(json.dumps({"format_version": 2, "pad": "x" * 100}))
+    monkeypatch.setattr(registry, "MAX_MANIFEST_BYTES", 64)
+    with pytest.raises(DatasetError, match=r"manifest.json has \d+ bytes, more than the 64 a manifest may have"):
+        read_manifest(folder)

@@ -204,7 +204,7 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         # The sidecar first: a scene counts as done when its MCAP file exists (renamed into place last).
         _write_json(out / (job.file + SIDECAR), sidecar)
         t0 = time.perf_counter()
-        with removed_on_error(out / (job.file + ".tmp")):  # a full disk leaves no partial file behind
+        with removed_on_error(out / (job.file + ".tmp"), out / (job.file + SIDECAR)):  # nothing left by a full disk
             write_scene_file(out / job.file, SceneRecord(
                 scene, job.index, job.split, list(robot.joint_names),
                 _file_metadata(spec, job, robot.asset_hash, config_hash),

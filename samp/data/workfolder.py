@@ -139,18 +139,17 @@ def unfinished(work: Path, jobs: list, label: str) -> list:
 
 
 @contextmanager
-def removed_on_error(tmp: Path):
-    """Remove the temporary file `tmp` when the block fails (a full disk, Ctrl-C): no partial output stays. An
-    OSError of a write names no file (a full disk while writing); it is raised again naming `tmp`."""
+def removed_on_error(tmp: Path, *also: Path):
+    """Remove the temporary file `tmp` (and the files `also`) when the block fails (a full disk, Ctrl-C): no
+    partial output stays. An OSError of a write names no file (a full disk while writing); it is raised
+    again naming `tmp`."""
     try:
         yield
-    except OSError as err:
-        tmp.unlink(missing_ok=True)
-        if err.filename is None:
+    except BaseException as err:
+        for path in (tmp, *also):
+            path.unlink(missing_ok=True)
+        if isinstance(err, OSError) and err.filename is None:
             raise OSError(err.errno, err.strerror, str(tmp)) from None
-        raise
-    except BaseException:
-        tmp.unlink(missing_ok=True)
         raise
 
 

@@ -158,8 +158,9 @@ def _check_evaluable(cfg) -> None:
     if not (manifest.get("counts") or {}).get("eval_problems"):
         name = manifest.get("name")
         raise ValueError(f"dataset {name}@{manifest.get('id')} stores no evaluation problems (it predates them), so "
-                         f"the run could not be evaluated after training: regenerate it (`python -m samp.data "
-                         f"generate dataset={name}`, or build_missing.dataset=true), or set evaluation.problems=0")
+                         f"the run could not be evaluated after training: regenerate it "
+                         f"(`{paste('python -m samp.data generate', dataset=name)}`, or build_missing.dataset=true), "
+                         "or set evaluation.problems=0")
 
 
 def prepare(cfg) -> None:

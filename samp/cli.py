@@ -11,15 +11,19 @@ composed config resolved where possible.
 
 from __future__ import annotations
 
+import errno
+import math
 import re
+import shlex
 import sys
 import textwrap
 from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["HELP_FLAGS", "canonical_overrides", "command_help", "compose", "config_names", "config_yaml",
-           "default_groups", "describe", "flag", "output_path", "parse_options", "run_command", "settings_help",
+__all__ = ["HELP_FLAGS", "canonical_overrides", "check_finite", "command_help", "compose", "config_names",
+           "config_yaml", "default_groups", "describe", "flag", "output_path", "parse_options", "paste", "run_command",
+           "settings_help", "user_error",
            "wants_help", "wrap"]
 
 HELP_FLAGS = ("-h", "--help")
@@ -60,15 +64,39 @@ def canonical_overrides(config_name: str, overrides: list[str]) -> list[str]:
 
 
 def compose(config_name: str, overrides: list[str], return_hydra_config: bool = False):
-    """Compose `conf/<config_name>.yaml` with command-line overrides (`key=value`, `group=option`)."""
+    """Compose `conf/<config_name>.yaml` with command-line overrides (`key=value`, `group=option`); every float
+    of the result must be finite (`check_finite`)."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
+    from omegaconf import OmegaConf
 
     from samp.paths import conf_dir
 
     with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return hydra_compose(config_name=config_name, overrides=canonical_overrides(config_name, list(overrides)),
-                             return_hydra_config=return_hydra_config)
+        cfg = hydra_compose(config_name=config_name, overrides=canonical_overrides(config_name, list(overrides)),
+                            return_hydra_config=return_hydra_config)
+    check_finite(_resolved(cfg, OmegaConf.to_container(cfg, resolve=False)))
+    return cfg
+
+
+def check_finite(node, path: str = "") -> None:
+    """Every float of a config (plain containers) must be finite: `lr=nan` would pass every range check (a
+    NaN compares false) and fail much later without naming the key."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            check_finite(value, f"{path}.{key}" if path else str(key))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            check_finite(value, f"{path}[{i}]")
+    elif isinstance(node, float) and not math.isfinite(node):
+        raise ValueError(f"config key {path}={node!r} is not a finite number; give a finite value")
+
+
+def paste(command: str, *args, **options) -> str:
+    """A command line for a user to paste: `command` (fixed words of ours) followed by each argument and
+    `key=value` option shell-quoted, so a name holding `;`, spaces or quotes is one word, never shell code."""
+    words = [*map(str, args), *(f"{key}={value}" for key, value in options.items())]
+    return " ".join([command, *(shlex.quote(w) for w in words)])
 
 
 def output_path(out: str | Path) -> Path:
@@ -101,10 +129,53 @@ def run_command(argv: list[str] | None, usage: str | Callable[[], str],
         return 2
     try:
         commands[argv[0]](argv[1:])
-    except (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
+    except (HydraException, OmegaConfBaseException, ValueError, OSError) as err:
+        message = user_error(err)
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)
         return 2
     return 0
+
+
+# errno -> what went wrong with the path, and what to do about it
+_ENVIRONMENT = {
+    errno.ENOSPC: ("no space is left on the disk of", "free space there, or point the output elsewhere (root=DIR or "
+                   "SAMP_DATASETS_DIR / SAMP_RUNS_DIR / SAMP_CACHE_DIR) and run again"),
+    errno.EDQUOT: ("the disk quota is exhausted for", "free space there, or point the output elsewhere and run again"),
+    errno.EFBIG: ("a file grew past the size this system allows (ulimit -f) at", "raise the limit or write elsewhere"),
+    errno.EROFS: ("the file system is read-only at", "write to a folder you can write (root=DIR, or SAMP_*_DIR)"),
+    errno.EACCES: ("permission denied for", "write to a folder you can write (root=DIR, or SAMP_*_DIR), or fix its "
+                   "permissions"),
+    errno.EPERM: ("the operation is not permitted on", "use a folder you own (root=DIR, or SAMP_*_DIR)"),
+    errno.ENAMETOOLONG: ("a name is too long for the file system in", "choose a shorter name (most file systems allow "
+                         "255 bytes a name)"),
+    errno.ENOTDIR: ("a file stands where a folder is needed in", "point the path (or SAMP_*_DIR) at a folder, or move "
+                    "the file away"),
+    errno.EISDIR: ("a folder stands where a file is needed at", "give a file path"),
+    errno.EEXIST: ("something already exists at", "move it away, or choose another path"),
+    errno.ENOENT: ("no such file or folder:", "check the path, or create the folder"),
+}
+
+
+def user_error(err: BaseException) -> str | None:
+    """The one line to print for an error of the user's input or environment (exit 2), or None for a bug
+    (which keeps its traceback). An OSError of the environment (disk full, read-only, a name too long, a
+    file where a folder belongs) names the path and what to do."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    if isinstance(err, (HydraException, OmegaConfBaseException, ValueError)):  # Hydra's missing config is an IOError
+        return str(err)
+    if not isinstance(err, OSError):
+        return None
+    if err.errno is None:  # raised by samp itself (a missing config folder, SAMP_HOME a file): its message says it all
+        return str(err)
+    if err.errno not in _ENVIRONMENT:
+        return None
+    what, todo = _ENVIRONMENT[err.errno]
+    paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None) or "(a path not given)"
+    return f"{what} {paths} ({err.strerror}); {todo}"
 
 
 # --- help texts, computed from the config folder ---------------------------------------------------------

@@ -6,9 +6,14 @@ from __future__ import annotations
 
 __all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "BATCH_START", "BATCH_STEP", "BATCH_STEP_CLEAN", "BATCH_TRAJ", "BEST_CKPT",
            "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE", "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX",
-           "LAST_CHECKPOINT", "METRICS_CSV", "METRICS_JSON", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL",
+           "LAST_CHECKPOINT", "METRICS_CSV", "N_E_MAX", "METRICS_JSON", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL",
            "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRAIN_LOG", "TRAIN_PREFIX",
            "VAL_PREFIX"]
+
+# The most anchors per axis of a scene grid: 256^3 float32 distances are 64 MiB per grid (the paper's largest
+# n_e is 160). Checked wherever n_e is given (grids, training and evaluation configs), before anything is
+# allocated: n_e = 100000 would ask for petabytes.
+N_E_MAX = 256
 
 # ---------------------------------------------------------------- a run folder (docs/design.md section 6)
 RUN_JSON = "run.json"

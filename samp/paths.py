@@ -16,7 +16,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "config_path", "file_sha256", "find_checkpoint",
+__all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "config_path", "env_folder", "file_sha256", "find_checkpoint",
            "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "source_checkout", "user_config"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -93,16 +93,28 @@ def user_config(path: Path) -> Path | None:
     return next((folder for folder in config_path() if real.is_relative_to(folder)), None)
 
 
+def env_folder(variable: str, default) -> Path:
+    """The folder `$variable` names (else `default`, a path or a function giving one, called only then);
+    ValueError when a file stands there, so that the user reads which variable to fix rather than a
+    NotADirectoryError from deep inside a command."""
+    path = Path(os.environ.get(variable) or (default() if callable(default) else default)).expanduser()
+    if path.exists() and not path.is_dir():
+        where = f"{variable}={os.environ[variable]}" if os.environ.get(variable) else f"the default folder {path}"
+        raise ValueError(f"{where} is a file, not a folder; point {variable} at a folder (it is created when missing)"
+                         + ("" if os.environ.get(variable) else " or move the file away"))
+    return path
+
+
 def runs_root() -> Path:
     """Where run folders go: `$SAMP_RUNS_DIR`, else `runs/` in the project folder (one definition for every
     layer: the evaluation writes stand-alone results there too)."""
-    return Path(os.environ.get("SAMP_RUNS_DIR", project_dir() / "runs"))
+    return env_folder("SAMP_RUNS_DIR", lambda: project_dir() / "runs")
 
 
 def cache_dir(*parts: str) -> Path:
     """A folder under samp's disk cache, created if missing."""
     default = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "samp"
-    path = Path(os.environ.get("SAMP_CACHE_DIR", default)).joinpath(*parts)
+    path = env_folder("SAMP_CACHE_DIR", default).joinpath(*parts)
     path.mkdir(parents=True, exist_ok=True)
     return path
 

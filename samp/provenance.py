@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import os
 import platform
 import subprocess
 from functools import lru_cache
 from importlib import metadata
+from pathlib import Path
 
 from samp import __version__
 from samp.paths import REPO_ROOT, source_checkout
 
-__all__ = ["code_version", "package_versions"]
+__all__ = ["code_version", "package_versions", "process_gone"]
 
 TRACKED_PACKAGES = ("torch", "pytorch-lightning", "hydra-core", "pybullet", "pytorch-kinematics", "ompl",
                     "trimesh", "mcap", "rerun-sdk", "numpy")
@@ -44,3 +46,37 @@ def package_versions() -> dict:
         except metadata.PackageNotFoundError:
             versions[name] = None
     return versions
+
+
+def process_gone(pid: int, started: float | None = None) -> str | None:
+    """Why process `pid` of this host is gone (or is not the process that started at `started`, a Unix time,
+    any more: its id reused by a younger process), or None while it may be running. A lock's holder and a
+    run's trainer are judged by it."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return "that process is gone"
+    except PermissionError:  # alive, another user's
+        pass
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:  # gone meanwhile, or no /proc: taken as alive until the next look
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()
+    if fields[0] in ("Z", "X"):
+        return "that process is gone (a zombie)"
+    if started is not None:
+        born = _boot_time() + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+        if born > started + 2.0:  # the clock-tick start time of /proc is good to a second
+            return "that process is gone (its process id now belongs to a younger process)"
+    return None
+
+
+_BOOT: list[float] = []
+
+
+def _boot_time() -> float:
+    if not _BOOT:
+        lines = Path("/proc/stat").read_text().splitlines()
+        _BOOT.append(float(next(line.split()[1] for line in lines if line.startswith("btime "))))
+    return _BOOT[0]

@@ -113,7 +113,7 @@ def _parse(args: list[str], needs_ref: bool, keys: tuple[str, ...] = ()) -> tupl
 
 
 def _ls(args: list[str]) -> None:
-    from samp.data.registry import datasets_root, list_datasets
+    from samp.data.registry import DatasetError, datasets_root, list_datasets, read_manifest
 
     _, opts = _parse(args, needs_ref=False)
     root = _root(opts) or datasets_root()
@@ -124,6 +124,11 @@ def _ls(args: list[str]) -> None:
     width = max(32, *(len(d["name"]) + 1 + len(d["id"]) for d in rows))
     print(f"{'name@id':<{width}} {'created':<32} {'scenes':>6} {'trajs':>7} {'eval':>6} {'MB':>8}")
     for d in rows:
+        if not d.get("damaged"):  # list_datasets reads manifests only: a file truncated or missing shows here
+            try:
+                read_manifest(Path(d["path"]))
+            except DatasetError as err:
+                d["damaged"] = str(err)
         if d.get("damaged"):
             print(f"{d['name'] + '@' + d['id']:<{width}} DAMAGED: {d['damaged']}")
             continue

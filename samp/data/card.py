@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 
+from samp.cli import paste
+
 __all__ = ["CARD", "dataset_card"]
 
 CARD = "CARD.md"
@@ -25,8 +27,8 @@ def dataset_card(manifest: dict) -> str:
     lines = [
         f"# Dataset card: {ref}", "",
         f"Created {manifest.get('created', '?')} by samp {code.get('package', '?')} (git {code.get('git_commit', '?')}"
-        f"{', with uncommitted changes' if code.get('git_dirty') else ''}), manifest format "
-        f"{manifest.get('format_version', '?')}.", "",
+        f"{', with uncommitted changes' if code.get('git_dirty') else ''}); scene files of format "
+        f"{manifest.get('scene_file_version', '?')}, manifest format {manifest.get('format_version', '?')}.", "",
         "## What it holds", "",
         f"- robot: `{robot.get('name', '?')}` (asset hash `{str(robot.get('asset_hash', '?'))[:16]}...`)",
         f"- scenes: {counts.get('scenes', '?')} ({counts.get('train_scenes', 0)} train, {counts.get('val_scenes', 0)} val, "
@@ -48,7 +50,7 @@ def dataset_card(manifest: dict) -> str:
         "## Use", "",
         "```python", "from samp.data import open_dataset", f'ds = open_dataset("{ref}")', "```", "",
         "Each `scene_*.mcap` opens in Foxglove Studio (scene, anchor grid, robot moving along every trajectory).",
-        f"Check a copy with `python -m samp.data verify dataset={ref}`.", "",
+        f"Check a copy with `{paste('python -m samp.data verify', dataset=ref)}`.", "",
         "## Sharing", "",
         "Share the whole folder (manifest.json, this card and every .mcap file): the id is the hash of the data "
         "files, so a recipient can verify it. The robot model comes from the URDF named by the robot config "
@@ -69,6 +71,6 @@ def _general_card(manifest: dict) -> str:
         f"Created {manifest.get('created', '?')} by samp {code.get('package', '?')} (git {code.get('git_commit', '?')}).", "",
         f"{len(manifest.get('files') or {})} data files, listed with their sizes and sha256 in manifest.json, "
         "which also holds the configuration that made them; the id is the hash of the data files.", "",
-        f"Check a copy with `python -m samp.data verify dataset={ref}`; share the whole folder.", "",
+        f"Check a copy with `{paste('python -m samp.data verify', dataset=ref)}`; share the whole folder.", "",
         "## Parents", "", json.dumps(manifest.get("parents") or []), "",
     ])

@@ -226,15 +226,17 @@ def write_dataset(ds: Dataset, name: str | None = None, root: Path | None = None
     tmp = root / name / f".tmp-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir(parents=True)
     try:
-        infos = []
+        infos, formats = [], set()
         for i in range(len(ds.scenes)):
             record, info = _scene_record(ds, i)
             write_scene_file(tmp / info["file"], record)
             infos.append(info)
+            formats.add(record.format_version)
         m = ds.manifest
         manifest = build_manifest(m["config"], m["config_hash"], m["seed"], m["robot"]["asset_hash"], infos,
                                   parents=[f"{ds.name}@{ds.id}"])
-        manifest.update(code_version=code_version(), versions=package_versions())
+        manifest.update(code_version=code_version(), versions=package_versions(),
+                        scene_file_version=max(formats) if len(formats) == 1 else sorted(formats))
         return finalize_dataset(tmp, name, manifest, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

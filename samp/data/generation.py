@@ -35,16 +35,17 @@ from pathlib import Path
 
 import numpy as np
 
+from samp.cli import paste
 from samp.data.lifecycle import die_with_parent, drain, end_workers, exit_without_teardown, reproducible_mkl
 from samp.data.merging import (EVAL_PREFIX, MERGING, MergeLockTimeout, build_manifest, link_or_copy, merge_lock,
                                 move_aside, remove_trash)
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
+from samp.data.workfolder import SIDECAR, clear_stale, generation_lock, removed_on_error, unfinished, unique_tmp
 
 __all__ = ["GenerationError", "GenerationInterrupted", "generate", "merge", "work_dir"]
 
 TIMING_KEYS = ("planning_time", "solve_time", "simplify_time")  # wall clock: manifest only
-SIDECAR = ".json"
 # derive_seed(scene seed, KEY[, problem]): the seed streams of a scene's problems and plans. Demonstrations
 # and evaluation problems draw from different streams, so no evaluation problem repeats a demonstration.
 DEMO_PROBLEMS, DEMO_PLANS, EVAL_PROBLEMS, EVAL_PLANS = 1, 2, 3, 4
@@ -203,12 +204,13 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         # The sidecar first: a scene counts as done when its MCAP file exists (renamed into place last).
         _write_json(out / (job.file + SIDECAR), sidecar)
         t0 = time.perf_counter()
-        write_scene_file(out / job.file, SceneRecord(
-            scene, job.index, job.split, list(robot.joint_names),
-            _file_metadata(spec, job, robot.asset_hash, config_hash),
-            grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
-            eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
-            poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
+        with removed_on_error(out / (job.file + ".tmp"), out / (job.file + SIDECAR)):  # nothing left by a full disk
+            write_scene_file(out / job.file, SceneRecord(
+                scene, job.index, job.split, list(robot.joint_names),
+                _file_metadata(spec, job, robot.asset_hash, config_hash),
+                grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
+                eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
+                poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
         stages["write"] = time.perf_counter() - t0
         _write_json(out / (job.file + SIDECAR), sidecar)  # again, with the writing time
         return sidecar
@@ -231,10 +233,12 @@ def _stacked(trajectories: list[np.ndarray], n: int) -> np.ndarray:
     return np.stack(trajectories) if trajectories else np.zeros((0, 0, n))
 
 
-def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
-    tmp.replace(path)
+def _write_json(path: Path, data: dict, shared: bool = False) -> None:
+    """Write `data` to `path` atomically; `shared`: a file several processes may write (a unique temporary)."""
+    tmp = unique_tmp(path) if shared else path.with_name(path.name + ".tmp")
+    with removed_on_error(tmp):
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
+        tmp.replace(path)
 
 
 # ------------------------------------------------------------------------------------------ shards
@@ -263,8 +267,6 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     finished scene files. When every scene of the spec is done, merge into a dataset and return its
     folder; otherwise (a shard of several) return None. A spec generated before (a finished dataset of the
     same config hash, no work under way) is found and returned, nothing planned."""
-    from samp.console import Progress
-
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
     if num_shards < 1 or (shard is not None and not 0 <= shard < num_shards):
         raise ValueError(f"shard must be in [0, num_shards) with num_shards >= 1, got shard={shard} num_shards={num_shards}")
@@ -275,12 +277,20 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     if done is not None:
         return done
     work.mkdir(parents=True, exist_ok=True)
-    _write_json(work / "spec.json", spec.resolved())
-    for stale in work.glob("*.tmp"):  # left by a killed run
-        stale.unlink()
-    jobs = [j for j in spec.scene_jobs() if shard is None or j.index % num_shards == shard]
-    todo = [j for j in jobs if not (work / j.file).is_file()]
     label = f"{spec.name}" + ("" if shard is None else f" shard {shard}/{num_shards}")
+    with generation_lock(work, spec.name, shard, num_shards):
+        return _generate_locked(spec, shard, num_shards, workers, root, progress, work, label)
+
+
+def _generate_locked(spec: DatasetSpec, shard: int | None, num_shards: int, workers: int, root: Path | None,
+                     progress: bool, work: Path, label: str) -> Path | None:
+    """`generate` under the generation lock of its shard (`samp.data.workfolder`)."""
+    from samp.console import Progress
+
+    jobs = [j for j in spec.scene_jobs() if shard is None or j.index % num_shards == shard]
+    clear_stale(work, [j.file for j in jobs])  # before anything new is written: a full disk's leftovers go first
+    _write_json(work / "spec.json", spec.resolved(), shared=True)
+    todo = unfinished(work, jobs, label)  # a damaged scene file is removed and planned again
     if len(todo) < len(jobs):
         print(f"{label}: resuming, {len(jobs) - len(todo)} of {len(jobs)} scenes already done in {work}")
     plans = sum(j.trajectories + j.eval_problems for j in todo)  # demonstrations and evaluation problems
@@ -304,7 +314,7 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
     missing = [j for j in spec.scene_jobs() if not (work / j.file).is_file()]
     if missing:
         print(f"{label}: done; {len(missing)} scenes of other shards are not finished yet "
-              f"(run `python -m samp.data merge +dataset={spec.name}` when they are)")
+              f"(run `{paste('python -m samp.data merge', dataset=spec.name)}` when they are)")
         return None
     return merge(spec, root)  # a shard finishing at the same time may be merging: merge waits for it
 
@@ -369,11 +379,11 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
     published dataset (the next finds its id), or a `.removed-*` folder (the next removes it)."""
     from samp.provenance import code_version, package_versions
 
-    missing = [j.index for j in jobs if not (work / j.file).is_file() or not (work / (j.file + SIDECAR)).is_file()]
+    missing = [j.index for j in unfinished(work, jobs, spec.name)]  # a damaged scene is removed, never merged
     if missing:
         raise GenerationError(f"cannot merge {spec.name!r}: {len(missing)} of {len(jobs)} scenes are not generated "
                               f"yet (indices {missing[:20]}{' ...' if len(missing) > 20 else ''}) in {work}; run "
-                              f"`python -m samp.data generate +dataset={spec.name}` (or the missing shards) first")
+                              f"`{paste('python -m samp.data generate', dataset=spec.name)}` (or the missing shards) first")
     sidecars = [json.loads((work / (j.file + SIDECAR)).read_text()) for j in jobs]
     for left in work.glob(MERGING + "*"):  # of a killed merge: its lock was stale, so nothing else uses it
         shutil.rmtree(left, ignore_errors=True)
@@ -385,7 +395,7 @@ def _merge_locked(spec: DatasetSpec, root: Path, work: Path, jobs: list[SceneJob
         hashes = {s.get("robot_asset_hash") for s in sidecars}
         asset = next(iter(hashes)) if len(hashes) == 1 and None not in hashes else _asset_hash(spec.robot)
         manifest = build_manifest(spec.resolved(), spec.config_hash(), spec.seed, asset, sidecars, parents=[])
-        manifest.update(code_version=code_version(), versions=package_versions())
+        manifest.update(code_version=code_version(), versions=package_versions(), scene_file_version=SCENE_FILE_VERSION)
         dest = finalize_dataset(tmp, spec.name, manifest, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

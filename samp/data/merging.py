@@ -37,9 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from samp.names import SPLIT_ALIASES, SPLITS
+from samp.provenance import process_gone
 
 __all__ = ["EVAL_PREFIX", "HEARTBEAT_S", "MERGING", "STALE_AFTER_S", "TRASH", "WAIT_TIMEOUT_S", "MergeLockTimeout",
-           "build_manifest", "link_or_copy", "merge_lock", "move_aside", "remove_trash"]
+           "build_manifest", "held", "link_or_copy", "lock_content", "merge_lock", "move_aside", "remove_trash"]
 
 EVAL_PREFIX = "eval_"  # the evaluation problems' times in a sidecar: eval_planning_time, ...
 
@@ -65,6 +66,14 @@ def merge_lock(work: Path, name: str, timeout: float = WAIT_TIMEOUT_S):
     if content is None:
         yield
         return
+    with held(lock, content):
+        yield
+
+
+@contextmanager
+def held(lock: Path, content: bytes):
+    """Keep the lock file `lock` (created holding `content`) refreshed for the block, then remove it if it
+    is still ours."""
     stop = threading.Event()
     beat = threading.Thread(target=_heartbeat, args=(lock, content, stop), name="merge-lock-heartbeat", daemon=True)
     beat.start()
@@ -84,7 +93,7 @@ _HOST = platform.node()
 _LEGACY = re.compile(rb"process (\d+) on (\S+)")  # what the flock lock of earlier versions wrote
 
 
-def _lock_content() -> bytes:
+def lock_content() -> bytes:
     now = time.time()
     return (json.dumps({"host": _HOST, "pid": os.getpid(), "started": now,
                         "started_utc": datetime.fromtimestamp(now, timezone.utc).isoformat(timespec="seconds"),
@@ -98,7 +107,7 @@ def _acquire(lock: Path, name: str, timeout: float) -> bytes | None:
     while True:
         if not lock.parent.is_dir():
             return None
-        content = _lock_content()  # its start time: now
+        content = lock_content()  # its start time: now
         try:
             if _create(lock, content):
                 return content
@@ -179,42 +188,10 @@ def _stale(holder: dict, age: float) -> str | None:
     pid = holder.get("pid")
     if holder.get("host") == _HOST and isinstance(pid, int):
         started = holder.get("started")
-        return _gone(pid, started if isinstance(started, (int, float)) else None)
+        return process_gone(pid, started if isinstance(started, (int, float)) else None)
     if age > STALE_AFTER_S:
         return f"its lock file was last refreshed {age:.0f} s ago (stale after {STALE_AFTER_S:.0f} s)"
     return None
-
-
-def _gone(pid: int, started: float | None) -> str | None:
-    """Why process `pid` of this host is not the lock's holder any more, or None while it may be."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return "that process is gone"
-    except PermissionError:  # alive, another user's
-        pass
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:  # gone meanwhile, or no /proc: taken as alive until the next look
-        return None
-    fields = stat[stat.rindex(")") + 2:].split()
-    if fields[0] in ("Z", "X"):
-        return "that process is gone (a zombie)"
-    if started is not None:
-        born = _boot_time() + int(fields[19]) / os.sysconf("SC_CLK_TCK")
-        if born > started + 2.0:  # the clock-tick start time of /proc is good to a second
-            return "that process is gone (its process id now belongs to a younger process)"
-    return None
-
-
-_BOOT: list[float] = []
-
-
-def _boot_time() -> float:
-    if not _BOOT:
-        lines = Path("/proc/stat").read_text().splitlines()
-        _BOOT.append(float(next(line.split()[1] for line in lines if line.startswith("btime "))))
-    return _BOOT[0]
 
 
 def _take_over(lock: Path, stale: bytes, content: bytes, warning: str) -> None:

@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 from datetime import datetime, timezone
 from pathlib import Path
 
-from samp.paths import check_name, file_sha256, inside
+from samp.cli import paste
+from samp.paths import check_name, env_folder, file_sha256, inside
 
 __all__ = ["FORMAT_VERSION", "MANIFEST", "READABLE_VERSIONS", "SCENE_FILE_VERSION", "DatasetError", "content_id",
            "datasets_root", "file_problems", "finalize_dataset", "list_datasets", "manifest_hash", "read_manifest",
@@ -39,6 +39,7 @@ SCENE_FILE_VERSION = 3
 MANIFEST = "manifest.json"
 MANIFEST_HASH = "manifest_sha256"
 ID_LENGTH = 12
+MAX_MANIFEST_BYTES = 256 << 20  # a manifest is read whole; the paper's dataset's is a few MB
 
 
 class DatasetError(ValueError):
@@ -49,7 +50,7 @@ def datasets_root() -> Path:
     """`$SAMP_DATASETS_DIR`, else `datasets/` in the project folder (`samp.paths.project_dir`)."""
     from samp.paths import project_dir
 
-    return Path(os.environ.get("SAMP_DATASETS_DIR", project_dir() / "datasets"))
+    return env_folder("SAMP_DATASETS_DIR", lambda: project_dir() / "datasets")
 
 
 def content_id(files: dict[str, str]) -> str:
@@ -70,7 +71,7 @@ def recreate_hint(folder: Path, manifest: dict | None = None, how: str | None = 
     """What to do about a damaged dataset: restore it, or make it again (`how`; default: generate it from
     its spec)."""
     name = (manifest or {}).get("name") or folder.parent.name
-    how = how or (f"generate it again with `python -m samp.data generate dataset={name}` (the spec it was made "
+    how = how or (f"generate it again with `{paste('python -m samp.data generate', dataset=name)}` (the spec it was made "
                   f"from is under 'config' in its {MANIFEST})")
     return f"restore {folder} from a copy, or delete it and {how}"
 
@@ -124,6 +125,9 @@ def read_manifest(folder: Path, check_sizes: bool = True) -> dict:
     path = folder / MANIFEST
     if not path.is_file():
         raise DatasetError(f"{folder} is not a dataset: it has no {MANIFEST}")
+    if path.stat().st_size > MAX_MANIFEST_BYTES:  # read whole: a size no dataset of ours comes near
+        raise DatasetError(f"{path} has {path.stat().st_size} bytes, more than the {MAX_MANIFEST_BYTES} a manifest "
+                           f"may have; it is not a samp manifest. {recreate_hint(folder)}")
     try:
         manifest = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as err:

@@ -28,6 +28,7 @@ from omegaconf.errors import ConfigKeyError, ValidationError
 
 from samp.expert.config import ExpertConfig, load_expert_config
 from samp.expert.seeding import derive_seed
+from samp.names import N_E_MAX
 from samp.paths import conf_dir
 from samp.scene.registry import _load_config as load_generator_config
 
@@ -182,6 +183,27 @@ def check_overrides(overrides: list[str]) -> None:
         if key in RETIRED_KEYS:
             raise ValueError(f"{override!r}: {key!r} is retired; use {RETIRED_KEYS[key]} "
                              "(dataset.val_scenes=N dataset.test_scenes=M)")
+        _check_key(override)
+
+
+def _check_key(override: str) -> None:
+    """Refuse a misspelt key (`workrs=2`, `dataset.train_scene=3`) with the valid keys and the closest one;
+    Hydra would only suggest appending it with `+`. Hydra's own keys and options are left to Hydra."""
+    import difflib
+
+    key, eq, _ = override.partition("=")
+    if not eq or key.startswith(("+", "~", "-", "hydra")) or "/" in key or key == "dataset":
+        return
+    head, _, leaf = key.partition(".")
+    if head == "dataset":
+        valid, name, shown = sorted(DatasetSpec.__dataclass_fields__), leaf.split(".")[0], "spec keys (dataset.KEY)"
+    else:
+        valid = [k for k in OmegaConf.load(conf_dir() / "data.yaml") if k not in ("defaults", "hydra")]
+        name, shown = key, "settings"
+    if "." in key and head != "dataset" or name not in valid:
+        close = [f"dataset.{c}" if head == "dataset" else c for c in difflib.get_close_matches(name, valid, n=1)]
+        raise ValueError(f"unknown key {key!r}{f' (did you mean {close[0]!r}?)' if close else ''}; {shown}: "
+                         f"{', '.join(valid)}{'' if head == 'dataset' else ', dataset=NAME, dataset.KEY=VALUE'}")
 
 
 def _check(spec: DatasetSpec) -> None:
@@ -228,8 +250,8 @@ def _check(spec: DatasetSpec) -> None:
     require(not unknown, f"unknown scene generators {unknown}; available: {available_generators()}")
     stray = sorted(set(spec.generator_overrides) - set(spec.generators))
     require(not stray, f"generator_overrides for generators not in `generators`: {stray}")
-    require(len(spec.resolutions) >= 1 and all(2 <= n <= 512 for n in spec.resolutions),
-            f"resolutions must list anchor counts per axis in [2, 512], got {spec.resolutions}")
+    require(len(spec.resolutions) >= 1 and all(2 <= n <= N_E_MAX for n in spec.resolutions),
+            f"resolutions must list anchor counts per axis in [2, {N_E_MAX}], got {spec.resolutions}")
     require(len(set(spec.resolutions)) == len(spec.resolutions), f"resolutions has duplicates: {spec.resolutions}")
     spec.expert_config()  # raises with the expert config's own message
 

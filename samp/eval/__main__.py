@@ -17,7 +17,7 @@ from pathlib import Path
 
 from samp.cli import compose, output_path, run_command
 
-USAGE = """usage: python -m samp.eval run=RUN_DIR [benchmark=unseen|null] [splits=[val,train]] [problems=N] [key=value ...]
+USAGE = """usage: python -m samp.eval [run=]RUN_DIR [benchmark=unseen|null] [splits=[val,train]] [problems=N] [key=value ...]
                                                                           a run's policy
        python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] [key=value ...]
 Sections: the dataset's stored evaluation problems per split (val, train, test scenes) and the standing
@@ -36,13 +36,13 @@ def _config(overrides: list[str]):
     # `dataset=REF` names a config group to Hydra (conf/dataset/ holds dataset specs), so keys that are
     # also group names are set after composition instead of being passed to Hydra.
     valid = list(EvalConfig.__dataclass_fields__)
-    overrides = [_old_split(o) for o in overrides]
+    overrides = [_old_split(_bare_run(o)) for o in overrides]
     for o in overrides:  # a typo is named with the valid keys (Hydra would suggest `+key=`, then refused)
         key = o.partition("=")[0].lstrip("+~").split(".")[0]
         if key not in valid and key != "hydra":
             raise ValueError(f"unknown eval setting {key!r} (in {o!r}); valid keys: {', '.join(valid)}")
     groups = {k for k in valid if (conf_dir() / k).is_dir()}
-    late = [o for o in overrides if o.partition("=")[0] in groups]
+    late = [o for o in overrides if o.partition("=")[0] in groups | set(PATH_KEYS)]
     try:
         raw = compose("eval", [o for o in overrides if o not in late])
     except ConfigCompositionException as err:
@@ -52,6 +52,20 @@ def _config(overrides: list[str]):
         key, _, value = o.partition("=")
         raw[key] = None if value in ("", "null") else value
     return load_eval_config(raw)
+
+
+# Keys whose value is a path, taken verbatim rather than through Hydra's grammar: a sweep member's folder
+# (`runs/sweeps/S/experiment=samp_n40,seed=1`) holds `=` and `,`, which Hydra reads as syntax.
+PATH_KEYS = ("run", "out", "root")
+
+
+def _bare_run(arg: str) -> str:
+    """A bare run folder (`runs/EXP/TIME`, or a sweep member's folder, `=` and all) as `run=FOLDER`: an
+    argument without `=`, one whose part before the first `=` holds a `/`, or an existing folder."""
+    key = arg.partition("=")[0]
+    if "=" not in arg or "/" in key or (key not in PATH_KEYS and Path(arg).is_dir()):
+        return f"run={arg}"
+    return arg
 
 
 OLD_SPLITS = {"heldout": "[val]", "val": "[val]", "train": "[train]", "test": "[test]", "both": "[val,train]"}

@@ -10,6 +10,8 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, ValidationError
 
+from samp.names import N_E_MAX
+
 __all__ = ["PLANNERS", "EvalConfig", "RolloutConfig", "load_eval_config", "rollout_config", "tolerance_label"]
 
 # planner=NAME without a run: the expert's stored trajectories, the straight-line baseline, the expert
@@ -144,7 +146,7 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
              cfg.planner)
     _require(cfg.record_rollouts >= 0 and cfg.record_points >= 1, "record_rollouts / record_points", ">= 0 / >= 1",
              (cfg.record_rollouts, cfg.record_points))
-    _require(cfg.n_e is None or cfg.n_e >= 2, "n_e", "null or an integer >= 2", cfg.n_e)
+    _require(cfg.n_e is None or 2 <= cfg.n_e <= N_E_MAX, "n_e", f"null or an integer in [2, {N_E_MAX}]", cfg.n_e)
     _require(cfg.device == "auto" or cfg.device == "cpu" or cfg.device.split(":")[0] == "cuda", "device",
              "auto | cpu | cuda[:N]", cfg.device)
     _require(cfg.robot_sdf_tables is None or cfg.robot_sdf_tables == 0 or cfg.robot_sdf_tables >= 2,

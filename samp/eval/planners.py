@@ -40,8 +40,10 @@ class StraightLinePolicy:
     def __init__(self, robot, max_step: float = 0.05, n_e: int | None = None):
         if not (np.isfinite(max_step) and max_step > 0):
             raise ValueError(f"max_step must be a positive number of radians, got {max_step!r}")
-        if n_e is not None and (not isinstance(n_e, int) or n_e < 2):
-            raise ValueError(f"n_e must be None or an integer >= 2, got {n_e!r}")
+        if n_e is not None:
+            from samp.scene.grid import check_n_e
+
+            n_e = check_n_e(n_e)
         self.robot, self.max_step, self.n_e = robot, float(max_step), n_e
         self.name = "straight"
 

@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from samp.cli import paste
 from samp.eval.names import SPLITS
 from samp.names import SPLIT_ALIASES
 
@@ -110,7 +111,7 @@ def problems_from_dataset(ds, split: str, count: int | None = None, seed: int = 
     label = f"dataset {ds.name}@{ds.id}"
     if not ds.has_eval_problems:
         raise ValueError(f"{label} predates stored evaluation problems (its problems would be its own training "
-                         f"demonstrations); regenerate it with `python -m samp.data generate dataset={ds.name}`")
+                         f"demonstrations); regenerate it with `{paste('python -m samp.data generate', dataset=ds.name)}`")
     scenes = ds.scene_indices(split)
     if not scenes:
         counts = {s: ds.scene_split.count(s) for s in SPLITS}

@@ -23,6 +23,8 @@ from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
+from samp.cli import paste
+
 __all__ = ["PROTOCOL", "Section", "dataset_sections", "evaluate_sections", "grid_source", "protocol_sections"]
 
 PROTOCOL = 2  # metrics.json without a "protocol" key: version 1 (training demonstrations as problems)
@@ -217,7 +219,7 @@ def _write(out: Path, cfg, report: dict, planner, problems: list, records: list[
         path = write_recording(out / RECORDING_RRD, problems, _merged(results_all, planner.name),
                                _merged(results_all, "expert"), robot=getattr(planner, "robot", None),
                                record_rollouts=cfg.record_rollouts, record_points=cfg.record_points, metrics_md=table)
-        written.append(f"{RECORDING_RRD} ({path.stat().st_size / 1e6:.1f} MB; open with `rerun {path}`)")
+        written.append(f"{RECORDING_RRD} ({path.stat().st_size / 1e6:.1f} MB; open with `{paste('rerun', path)}`)")
         if reconstructions and reconstructions[0].scenes:
             from samp.perception.viz import write_reconstruction_recording
 

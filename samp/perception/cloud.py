@@ -14,10 +14,16 @@ Files hold points only.
   are skipped).
 - NPY: a float array (N, 3), or (..., 3) such as an organised (H, W, 3) cloud.
 Non-finite points (a sensor's invalid pixels) are dropped on reading.
+
+Counts in a header are checked against the bytes the file holds before anything is allocated (a header
+claiming two billion vertices over a few bytes is refused, not read line by line until memory runs out),
+against `MAX_POINTS`, and, where the format allows, against the data that follows: a PLY or PCD header
+declaring fewer points than the file holds is refused rather than read as its first rows.
 """
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -31,6 +37,26 @@ PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": 
              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 PLY_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
+MAX_POINTS = 50_000_000  # the most points (rows of a PLY element) a cloud file may declare: ~1.2 GB as float64
+
+
+def _check_count(path: Path, what: str, declared: int, data_bytes: int, row_bytes: int) -> None:
+    """Refuse a declared count of rows (each at least `row_bytes` long) that the `data_bytes` left in the file
+    cannot hold, or one above `MAX_POINTS`, before anything of that size is allocated."""
+    possible = data_bytes // max(row_bytes, 1)
+    if declared < 0:
+        raise ValueError(f"{path}: the header declares {declared} {what}; a count cannot be negative")
+    if declared > possible:
+        raise ValueError(f"{path}: the header declares {declared} {what}, the file's {data_bytes} bytes of data hold at "
+                         f"most {possible}: it is cut short or its header is wrong")
+    if declared > MAX_POINTS:
+        raise ValueError(f"{path}: the header declares {declared} {what}, more than the {MAX_POINTS} a cloud file may "
+                         "hold; downsample the cloud (e.g. a voxel filter) before reading it")
+
+
+def _left(f) -> int:
+    """Bytes left in the open file `f` after its current position."""
+    return os.fstat(f.fileno()).st_size - f.tell()
 
 
 # ----------------------------------------------------------------------------------------------- reading
@@ -72,7 +98,8 @@ def _ply_vertices(f, path: Path, fmt: str, elements) -> np.ndarray:
             raise ValueError(f"{path}: PLY element {name!r} before the vertices has list properties; "
                              "put the vertex element first")
         names = [p for p, _ in props]
-        if fmt == "ascii":
+        if fmt == "ascii":  # each value takes at least a digit and a separator
+            _check_count(path, f"rows of PLY element {name!r}", count, _left(f), 2 * len(props))
             rows = [f.readline().split() for _ in range(count)]
             if any(len(r) != len(props) for r in rows):
                 raise ValueError(f"{path}: PLY element {name!r} expects {count} rows of {len(props)} values; the "
@@ -81,6 +108,8 @@ def _ply_vertices(f, path: Path, fmt: str, elements) -> np.ndarray:
             columns = {p: data[:, i] for i, p in enumerate(names)}
         else:
             dtype = np.dtype([(p, PLY_FORMATS[fmt] + t) for p, t in props])
+            _check_count(path, f"rows of PLY element {name!r} ({dtype.itemsize} bytes each)", count, _left(f),
+                         dtype.itemsize)
             buf = f.read(dtype.itemsize * count)
             if len(buf) != dtype.itemsize * count:
                 raise ValueError(f"{path}: PLY element {name!r} needs {dtype.itemsize * count} bytes of data, the "
@@ -91,8 +120,27 @@ def _ply_vertices(f, path: Path, fmt: str, elements) -> np.ndarray:
             missing = [a for a in "xyz" if a not in columns]
             if missing:
                 raise ValueError(f"{path}: the PLY vertex element has properties {names}, missing {missing}")
+            _ply_rest(f, path, fmt, elements[[e[0] for e in elements].index("vertex") + 1:], count)
             return np.stack([columns[a].astype(np.float64) for a in "xyz"], axis=1)
     raise ValueError(f"{path}: the PLY file has no 'vertex' element (elements: {[e[0] for e in elements]})")
+
+
+def _ply_rest(f, path: Path, fmt: str, later, vertices: int) -> None:
+    """Refuse data after the vertices that the header does not declare (a header claiming fewer vertices than
+    the file holds): ascii, the lines left must be the rows of the later elements; binary, the bytes left
+    must be theirs when their rows have a fixed size (with list properties, their size is not checked)."""
+    if fmt == "ascii":
+        extra = sum(1 for line in f if line.strip()) - sum(count for _, count, _ in later)
+        unit = "lines"
+    elif any(isinstance(t, tuple) for _, _, props in later for _, t in props):
+        return
+    else:
+        sizes = [np.dtype([(p, PLY_FORMATS[fmt] + t) for p, t in props]).itemsize for _, _, props in later]
+        extra = _left(f) - sum(size * count for size, (_, count, _) in zip(sizes, later))
+        unit = "bytes"
+    if extra > 0:
+        raise ValueError(f"{path}: the header declares {vertices} vertices, but {extra} {unit} of data follow them "
+                         "that no element of the header accounts for; the header's vertex count is wrong")
 
 
 def load_point_cloud(path: str | Path) -> np.ndarray:
@@ -114,6 +162,7 @@ def load_point_cloud(path: str | Path) -> np.ndarray:
         with open(path, "rb") as f:
             points = _pcd_points(f, path)
     elif suffix == ".npy":
+        _check_npy(path)
         try:
             arr = np.load(path, allow_pickle=False)
         except ValueError as err:
@@ -135,6 +184,26 @@ def load_point_cloud(path: str | Path) -> np.ndarray:
         warnings.warn(f"{path}: {bad} of {len(points)} points ({bad / len(points):.1%}) are NaN or infinite and are "
                       "dropped", stacklevel=2)
     return points[finite]
+
+
+def _check_npy(path: Path) -> None:
+    """Refuse an NPY file whose header's shape needs more (or fewer) bytes than the file holds, or more than
+    `MAX_POINTS` points, before numpy allocates the array; the header itself is read by numpy's own reader."""
+    from numpy.lib import format as npy
+
+    with open(path, "rb") as f:
+        try:
+            version = npy.read_magic(f)
+            read = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+            shape, _, dtype = read(f)
+        except (ValueError, OSError, SyntaxError) as err:
+            raise ValueError(f"{path} is not a readable NPY array ({err}); save points with numpy.save") from None
+        count = int(np.prod(shape, dtype=object)) if shape else 1
+        if dtype.hasobject or dtype.itemsize == 0:
+            return  # refused by the dtype check after loading (np.load without pickles reads nothing of it)
+        _check_count(path, f"values of {dtype} (shape {shape})", count, _left(f), dtype.itemsize)
+        if count // 3 > MAX_POINTS:
+            _check_count(path, "points", count // 3, count // 3 * 3 * dtype.itemsize, 3 * dtype.itemsize)
 
 
 def save_point_cloud(path: str | Path, points, ascii: bool = False) -> Path:
@@ -198,10 +267,13 @@ def _pcd_points(f, path: Path) -> np.ndarray:
     except KeyError as err:
         raise ValueError(f"{path}: unknown PCD field type/size {err.args[0]}") from None
     n, data = int(fields["POINTS"][0]), fields["DATA"][0].lower()
+    if data in ("ascii", "binary"):
+        _check_count(path, "PCD points", n, _left(f), 2 * sum(counts) if data == "ascii" else dtype.itemsize)
     if data == "ascii":
-        rows = np.loadtxt(f, dtype=np.float64, ndmin=2, max_rows=n) if n else np.zeros((0, sum(counts)))
-        if len(rows) != n:
-            raise ValueError(f"{path}: the PCD header says {n} points, the file holds {len(rows)}")
+        lines = [line for line in f if line.strip()]  # bounded: n fits in the file's bytes
+        if len(lines) != n:
+            raise ValueError(f"{path}: the PCD header says {n} points, the file holds {len(lines)}")
+        rows = np.loadtxt(lines, dtype=np.float64, ndmin=2) if n else np.zeros((0, sum(counts)))
         column = {name: int(np.sum(counts[:i])) for i, name in enumerate(names)}
         return rows[:, [column["x"], column["y"], column["z"]]]
     if data == "binary":
@@ -209,6 +281,9 @@ def _pcd_points(f, path: Path) -> np.ndarray:
         if len(raw) != dtype.itemsize * n:
             raise ValueError(f"{path}: the PCD header says {n} points ({dtype.itemsize * n} bytes), the file holds "
                              f"{len(raw)} bytes of data; it is cut short")
+        if _left(f):
+            raise ValueError(f"{path}: the PCD header says {n} points, but {_left(f)} bytes of data follow them; the "
+                             "header's point count is wrong")
         table = np.frombuffer(raw, dtype=dtype)
         return np.stack([table["x"], table["y"], table["z"]], axis=1).astype(np.float64)
     raise ValueError(f"{path}: PCD DATA {data!r} is not read here (ascii or binary are); convert it, e.g. with "

@@ -76,8 +76,9 @@ class Lattice:
 
     @staticmethod
     def make(n_e: int, bounds, padding: float) -> "Lattice":
-        if not isinstance(n_e, (int, np.integer)) or n_e < 2:
-            raise ValueError(f"n_e (anchors per axis) must be an integer >= 2, got {n_e!r}")
+        from samp.scene.grid import check_n_e
+
+        n_e = check_n_e(n_e)
         if not (math.isfinite(padding) and padding >= 0):
             raise ValueError(f"padding must be a non-negative number of metres, got {padding!r}")
         lo, hi = np.asarray(check_bounds(bounds))

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import torch
 
+from samp.cli import paste
 from samp.names import BATCH_GOAL, BATCH_NEXT, BATCH_Q, BATCH_SCENE
 from samp.policy.base import NonFiniteLossError, PolicySystemBase
 from samp.policy.losses import LossConfig, StepPrediction, loss_terms
@@ -93,7 +94,7 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         if robot_sdf_payload is None:  # a new policy: read the artifact the config names
             if robot_sdf is None:
                 raise ValueError("the policy needs a robot SDF: set system.robot_sdf to an artifact, a run folder or "
-                                 f"an experiment name (train one with `python -m samp.train experiment=robot_sdf_{robot}`)")
+                                 f"an experiment name (train one with `{paste('python -m samp.train', experiment=f'robot_sdf_{robot}')}`)")
             robot_sdf_payload = read_robot_sdf(robot_sdf)
         self._robot_sdf_payload = robot_sdf_payload
         self.robot_sdf = _robot_sdf_from_payload(robot_sdf_payload, self.robot)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.cli import compose, output_path, run_command
+from samp.cli import compose, output_path, paste, run_command
 
 USAGE = """usage: python -m samp.robot show robot=NAME [out=FILE.rrd] [configs=N] [seed=S]
        python -m samp.robot add urdf=PATH name=NAME [base=LINK] [ee=LINK] [out=DIR] [samples=N] [seed=S] [force=true]
@@ -81,7 +81,7 @@ def show(overrides: list[str]) -> Path:
         rec.set_time("configuration", sequence=i)
         log_robot_pose(rec, robot, q)
     rec.save(out)
-    print(f"\nwrote {out} ({cfg.configs} configurations); open it with `rerun {out}`")
+    print(f"\nwrote {out} ({cfg.configs} configurations); open it with `{paste('rerun', out)}`")
     return out
 
 

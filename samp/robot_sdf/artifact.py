@@ -22,6 +22,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from samp.cli import paste
 from samp.robot_sdf.whole_robot import RobotSDF
 
 __all__ = ["ARTIFACT_FILE", "ARTIFACT_FORMAT", "CHECKPOINT_KEY", "artifact_id", "build_net", "describe",
@@ -178,13 +179,13 @@ def load_robot_sdf(ref: Path | str, robot=None, *, dtype: torch.dtype | None = N
         name = robot or info["robot"]
         if name != info["robot"]:
             raise ValueError(f"robot SDF {path} was trained for robot {info['robot']!r}, not {name!r}; train one with "
-                             f"`python -m samp.train +experiment=robot_sdf_{name}`")
+                             f"`{paste('python -m samp.train', experiment=f'robot_sdf_{name}')}`")
         robot = load_robot(name, dtype=dtype or torch.float32)
     if robot.name != info["robot"] or robot.asset_hash != info["robot_asset_hash"]:
         raise ValueError(f"robot SDF {path} was trained for robot {info['robot']!r} (asset hash "
                          f"{info['robot_asset_hash'][:12]}), but the robot given is {robot.name!r} (asset hash "
                          f"{robot.asset_hash[:12]}); its URDF or meshes differ. Retrain with "
-                         f"`python -m samp.train +experiment=robot_sdf_{robot.name}`")
+                         f"`{paste('python -m samp.train', experiment=f'robot_sdf_{robot.name}')}`")
     if list(robot.link_names) != list(info["link_names"]):
         raise ValueError(f"robot SDF {path} covers links {info['link_names']}, but {robot.name}'s collision links are "
                          f"{robot.link_names}; retrain it for this robot configuration")

@@ -86,13 +86,15 @@ def _by(command: str, opts: dict) -> str:
 
 def _ls(args: list[str]) -> None:
     from samp.runs.protocol import label
-    from samp.runs.registry import matches, scan_runs
+    from samp.runs.registry import check_key, matches, scan_runs
     from samp.runs.tables import list_table, markdown
 
     _, opts, filters = _args("ls", args, ("root", "keys"), lists=("keys",), filters=True)
     found, damaged = scan_runs(_root(opts.get("root")))
     if not found and not damaged:
         raise FileNotFoundError(f"no runs (folders with a run.json) under {_root(opts.get('root'))}")
+    for f in filters:  # a typo (`stauts=completed`) would match nothing and look like an answer
+        check_key(found, f.partition("=")[0], "filter key")
     runs = [r for r in found if matches(r, filters)]
     header, rows = list_table(runs, opts.get("keys", []))
     print(markdown(header, rows) + f"\n{len(rows)} run(s)" + (f", {len(damaged)} damaged:" if damaged else ""))

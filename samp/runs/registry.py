@@ -9,19 +9,24 @@ null; `samp.runs.protocol`) and its final metrics (`val/loss`, `eval/samp/benchm
 
 from __future__ import annotations
 
+import difflib
 import json
+import platform
 from dataclasses import dataclass, field
+from datetime import datetime
 from functools import cached_property
 from pathlib import Path
 
+from samp.provenance import process_gone
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import flatten
 from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rate, pooled_interval, protocol_of
 
-__all__ = ["EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "pooled", "scan_runs",
+__all__ = ["DIED", "EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "pooled", "scan_runs",
            "varying_keys"]
 
 EVAL_METRICS = Path("eval") / "metrics.json"  # written by `python -m samp.eval` (samp.eval.names)
+DIED = "died"  # shown for a run recorded running whose process is gone (`Run.status`)
 HIDDEN = ("config", "metrics", "packages", "traceback", "command", "starts", "loggers", "files_sha256")  # not keys of their own
 
 
@@ -37,7 +42,8 @@ class Run:
         """Config and record as dotted keys (the record wins where both have a key, e.g. `seed`), and the
         evaluation's `protocol`."""
         record = {k: v for k, v in self.record.items() if k not in HIDDEN}
-        return {**flatten(self.record.get("config") or {}), **flatten(record), PROTOCOL: self.protocol}
+        return {**flatten(self.record.get("config") or {}), **flatten(record), PROTOCOL: self.protocol,
+                "status": self.status}
 
     @property
     def metrics(self) -> dict:
@@ -48,9 +54,21 @@ class Run:
         """`<parent>/<folder>` (an experiment and timestamp, or a sweep and member)."""
         return f"{self.path.parent.name}/{self.path.name}"
 
-    @property
+    @cached_property
     def status(self) -> str:
-        return self.record.get("status", "?")
+        """The record's status, except `died` for a run recorded `running` whose process is gone: run.json
+        names the host and process id that trains it, and a process killed outright (SIGKILL, the OOM killer)
+        never writes its end. A run of another host cannot be asked and stays `running`."""
+        status = self.record.get("status", "?")
+        pid, host = self.record.get("pid"), self.record.get("host")
+        if status != "running" or not isinstance(pid, int) or host != platform.node():
+            return status
+        starts = self.record.get("starts") or [self.record.get("start")]
+        try:
+            started = datetime.fromisoformat(str(starts[-1])).timestamp()
+        except (TypeError, ValueError):
+            started = None
+        return DIED if process_gone(pid, started) else status
 
     @property
     def robot(self) -> str | None:
@@ -180,6 +198,8 @@ def check_key(runs: list[Run], key: str, what: str = "key") -> None:
     keys = sorted(set().union(*(r.values for r in runs))) if runs else []
     varying = varying_keys(runs, keys)
     metrics = sorted(set().union(*(r.metrics for r in runs))) if runs else []
-    raise ValueError(f"unknown {what} {key!r}: no run here has it. Keys that vary between these runs: "
+    close = difflib.get_close_matches(key, keys + metrics, n=1)
+    raise ValueError(f"unknown {what} {key!r}: no run here has it{f' (did you mean {close[0]!r}?)' if close else ''}. "
+                     "Keys that vary between these runs: "
                      f"{', '.join(varying) or 'none'}. Metrics: {', '.join(metrics) or 'none'}. "
                      f"Every other key: {', '.join(k for k in keys if k not in varying)}")

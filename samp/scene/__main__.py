@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from samp.cli import compose, output_path, run_command
+from samp.cli import compose, output_path, paste, run_command
 
 USAGE = """usage: python -m samp.scene show scene=NAME [seed=S] [n_e=N] [out=FILE.rrd]
   show    generate a scene, print it and its anchor grid; write a Rerun recording (obstacles, SDF slices,
@@ -82,7 +82,7 @@ def show(overrides: list[str]) -> Path:
     rec.save(out)
     print(f"  drawn         {count} of {grid.size} anchors as points (stride {stride}, at most {cfg.max_points}); "
           f"colours {SDF_COLORMAP} over [-{vmax:.3f}, {vmax:.3f}] m: red inside, white on surfaces, blue outside")
-    print(f"\nwrote {out}; open it with `rerun {out}`")
+    print(f"\nwrote {out}; open it with `{paste('rerun', out)}`")
     return out
 
 

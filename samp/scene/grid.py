@@ -15,21 +15,25 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from samp.names import N_E_MAX
 from samp.paths import cache_dir
 from samp.scene.model import Scene, check_bounds
 
-__all__ = ["anchor_points", "anchor_grid", "grid_coords", "sample_grid"]
+__all__ = ["anchor_points", "check_n_e", "anchor_grid", "grid_coords", "sample_grid"]
 
 
-def _check_n(n_e) -> int:
-    if not isinstance(n_e, (int, np.integer)) or isinstance(n_e, bool) or n_e < 2:
-        raise ValueError(f"n_e (anchors per axis) must be an integer >= 2, got {n_e!r}")
+def check_n_e(n_e) -> int:
+    """`n_e` (anchors per axis) as an int, or ValueError unless it is an integer in [2, N_E_MAX]."""
+    if not isinstance(n_e, (int, np.integer)) or isinstance(n_e, bool) or not 2 <= n_e <= N_E_MAX:
+        raise ValueError(f"n_e (anchors per axis) must be an integer in [2, {N_E_MAX}], got {n_e!r}"
+                         + (f" (a grid of {n_e}^3 anchors would need {4 * n_e ** 3 / 1e9:.3g} GB)"
+                            if isinstance(n_e, int) and n_e > N_E_MAX else ""))
     return int(n_e)
 
 
 def anchor_points(n_e: int, bounds, dtype=torch.float64) -> torch.Tensor:
     """(n_e, n_e, n_e, 3) anchor positions, indexed (x, y, z)."""
-    n_e = _check_n(n_e)
+    n_e = check_n_e(n_e)
     lo, hi = check_bounds(bounds)
     axes = [torch.linspace(lo[i], hi[i], n_e, dtype=dtype) for i in range(3)]
     return torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1)
@@ -38,7 +42,7 @@ def anchor_points(n_e: int, bounds, dtype=torch.float64) -> torch.Tensor:
 def anchor_grid(scene: Scene, n_e: int, bounds=None, cache: bool = True) -> torch.Tensor:
     """(n_e, n_e, n_e) float32 exact signed distances at the anchors, cached on disk by
     (scene hash, n_e, bounds)."""
-    n_e = _check_n(n_e)
+    n_e = check_n_e(n_e)
     bounds = check_bounds(scene.bounds if bounds is None else bounds)
     key = hashlib.sha256(json.dumps([scene.content_hash(), n_e, bounds]).encode()).hexdigest()[:24]
     path = cache_dir("anchor_grids") / f"{key}.npy"

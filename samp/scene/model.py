@@ -42,6 +42,9 @@ class Pose:
         object.__setattr__(self, "quaternion", tuple(float(v) for v in self.quaternion))
         if len(self.position) != 3 or len(self.quaternion) != 4:
             raise ValueError(f"a pose needs 3 position and 4 quaternion values, got {self.position}, {self.quaternion}")
+        if not np.all(np.isfinite(self.position + self.quaternion)):  # a NaN would make every distance NaN
+            raise ValueError(f"a pose needs finite values, got position {list(self.position)} and quaternion "
+                             f"{list(self.quaternion)}")
         norm = float(np.linalg.norm(self.quaternion))
         if abs(norm - 1.0) > 1e-6:
             raise ValueError(f"quaternion {self.quaternion} has norm {norm:.6f}; it must be a unit quaternion (x, y, z, w)")

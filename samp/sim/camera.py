@@ -39,6 +39,7 @@ __all__ = ["Camera", "CameraSet", "DepthImage", "Renderer", "back_project", "cam
            "load_camera_set", "robot_volume"]
 
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])  # optical axes (x right, y down, z fwd) -> OpenGL (y up, z back)
+MAX_SIDE = 8192  # pixels per side of a camera image: far above any depth sensor, far below what pybullet survives
 
 
 @dataclass
@@ -73,6 +74,9 @@ class Camera:
         if not (isinstance(self.width, int) and isinstance(self.height, int) and self.width >= 1 and self.height >= 1):
             raise ValueError(f"{where}: width and height must be positive integers (pixels), "
                              f"got {self.width}, {self.height}")
+        if max(self.width, self.height) > MAX_SIDE:  # before pybullet, which crashes on a huge image
+            raise ValueError(f"{where}: {self.width} x {self.height} pixels is larger than the {MAX_SIDE} pixels a "
+                             f"side allowed; give width and height <= {MAX_SIDE}")
         if (self.fov is None) == (self.fx is None):
             both = "both" if self.fov is not None else "neither"
             raise ValueError(f"{where}: give either fov (vertical, degrees) or fx (pixels), not {both}")

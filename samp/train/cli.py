@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from samp.cli import wants_help
+    from samp.cli import user_error, wants_help
     from samp.runs.folder import Terminated
 
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -146,8 +146,10 @@ def main(argv: list[str] | None = None) -> int:
         return multirun([a for a in argv if a not in ("-m", "--multirun")])
     try:
         folder = train(argv)
-    except bad_input as err:
-        print(f"error: {err}", file=sys.stderr)
+    except (*bad_input, OSError) as err:
+        if user_error(err) is None:
+            raise
+        print(f"error: {user_error(err)}", file=sys.stderr)
         return 2
     except FloatingPointError as err:  # a diverged run: run.json says failed, checkpoints/ keeps the last good state
         print(f"error: {err}", file=sys.stderr)

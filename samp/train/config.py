@@ -8,15 +8,19 @@ import re
 from dataclasses import dataclass, fields
 from typing import Any
 
-__all__ = ["TrainSchema", "compose_train_config"]
+from samp.names import N_E_MAX
+
+__all__ = ["MAX_BATCH", "TrainSchema", "compose_train_config"]
 
 PICK_EXPERIMENT = "pick an experiment with experiment=NAME (`python -m samp.train --help` lists them)"
 HYDRA_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
 # Ranges of arguments by name, for every `_target_` that takes them: checked with the types when the config
 # is composed, before any run folder or prerequisite. (low, high), inclusive; None: unbounded.
-RANGES = {"n_e": (2, None), "batch_size": (1, None), "num_workers": (0, None), "max_steps": (-1, None),
-          "max_epochs": (-1, None), "steps_per_epoch": (1, None), "val_samples": (0, None), "noise": (0, None),
-          "scenes_per_batch": (0, None), "lr": (0, None), "weight_decay": (0, None)}
+# Keys that size memory have upper limits: n_e that of the anchor grids (`samp.names.N_E_MAX`).
+MAX_BATCH = 65536  # batch_size, scenes_per_batch, val_samples: far above any run here, far below an allocation error
+RANGES = {"n_e": (2, N_E_MAX), "batch_size": (1, MAX_BATCH), "num_workers": (0, 256), "max_steps": (-1, None),
+          "max_epochs": (-1, None), "steps_per_epoch": (1, None), "val_samples": (0, MAX_BATCH * 16),
+          "noise": (0, None), "scenes_per_batch": (0, MAX_BATCH), "lr": (0, None), "weight_decay": (0, None)}
 _SCALARS = {"int": int, "float": float, "bool": bool, "str": str, "None": type(None)}
 
 
@@ -188,8 +192,14 @@ def compose_train_config(overrides: list[str]):
         raise ValueError(f"invalid top-level config value for key {key!r}: {str(err).splitlines()[0]} (see "
                          "conf/train.yaml for what it takes)") from None
     _check_targets(plain)
-    _check_values(plain, _resolved(cfg))
+    resolved = _resolved(cfg)
+    _check_values(plain, resolved)
+    trainer = resolved.get("trainer") if isinstance(resolved.get("trainer"), dict) else {}
+    if trainer.get("max_epochs") == -1 and trainer.get("max_steps", -1) in (-1, None):
+        raise ValueError("trainer.max_epochs=-1 with trainer.max_steps=-1 would train forever; give "
+                         "trainer.max_epochs=N (epochs) or trainer.max_steps=N (optimizer steps)")
     return cfg
+
 
 
 def _resolved(cfg) -> dict:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from samp.cli import paste
+
 __all__ = ["build_overrides", "prepare", "resolve_robot_sdf"]
 
 
@@ -85,7 +87,7 @@ def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None, lock: bool =
     other = f" (runs of other networks there, not taken by name: {_listing(found)})" if found else ""
     raise FileNotFoundError(f"no robot SDF {ref!r}: not a file or folder, and no completed run with {ARTIFACT_FILE} "
                             f"of the network {kind or 'it trains'} under {folder}{other}. Train one with "
-                            f"`python -m samp.train experiment=robot_sdf_{robot}`, pass build_missing.robot_sdf=true, or "
+                            f"`{paste('python -m samp.train', experiment=f'robot_sdf_{robot}')}`, pass build_missing.robot_sdf=true, or "
                             "set system.robot_sdf to a run folder, an artifact, or NAME@ID")
 
 
@@ -167,8 +169,9 @@ def _check_evaluable(cfg) -> None:
     if not (manifest.get("counts") or {}).get("eval_problems"):
         name = manifest.get("name")
         raise ValueError(f"dataset {name}@{manifest.get('id')} stores no evaluation problems (it predates them), so "
-                         f"the run could not be evaluated after training: regenerate it (`python -m samp.data "
-                         f"generate dataset={name}`, or build_missing.dataset=true), or set evaluation.problems=0")
+                         f"the run could not be evaluated after training: regenerate it "
+                         f"(`{paste('python -m samp.data generate', dataset=name)}`, or build_missing.dataset=true), "
+                         "or set evaluation.problems=0")
 
 
 def prepare(cfg) -> None:

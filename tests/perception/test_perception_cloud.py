@@ -60,9 +60,11 @@ def test_scan_from_file_moves_points_into_the_base_frame(tmp_path):
      "before the vertices has list properties"),
     (b"ply\nformat ascii 1.0\nelement edge 0\nproperty int a\nend_header\n", "no 'vertex' element"),
     (b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nproperty float y\n"
-     b"property float z\nend_header\n" + b"\x00" * 40, "needs 120 bytes of data, the file has 40"),
+     b"property float z\nend_header\n" + b"\x00" * 40, "declares 10 rows .*, the file's 40 bytes of data hold at most 3: it is cut short"),
     (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n",
-     "expects 3 rows of 3 values"),
+     "declares 3 rows of PLY element 'vertex', the file's 6 bytes of data hold at most 1"),
+    (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+     b"1 2 3\n4 5\n6 7 8 9\n", "expects 3 rows of 3 values"),
     (b"ply\nformat binary_middle_endian 1.0\nend_header\n", "unknown PLY format"),
 ])
 def test_bad_ply_files_say_what_is_wrong(tmp_path, content, message):

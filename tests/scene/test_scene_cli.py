@@ -113,7 +113,7 @@ def test_show_prints_summary_and_writes_recording(tmp_path):
 
 @pytest.mark.parametrize("args, messages", [
     (["show", "scene=nope"], ["Could not find 'scene/nope'", "Available options in 'scene'", "tabletop"]),
-    (["show", "n_e=1"], ["n_e (anchors per axis) must be an integer >= 2, got 1"]),
+    (["show", "n_e=1"], ["n_e (anchors per axis) must be an integer in [2, 256], got 1"]),
     (["draw"], ["usage: python -m samp.scene show"]),
 ])
 def test_show_rejects_bad_arguments(args, messages):

@@ -18,8 +18,8 @@ pytestmark = pytest.mark.slow  # subprocess CLIs, training or dataset generation
 @pytest.mark.parametrize("override, message", [
     ("datamodule.batch_size=abc", "config key datamodule.batch_size='abc': samp.data.module.TrajectoryDataModule takes "
                                   "int for 'batch_size', got a str"),
-    ("datamodule.n_e=-1", "config key datamodule.n_e=-1 is out of range: n_e must be >= 2"),
-    ("datamodule.batch_size=0", "config key datamodule.batch_size=0 is out of range: batch_size must be >= 1"),
+    ("datamodule.n_e=-1", "config key datamodule.n_e=-1 is out of range: n_e must be in [2, 256]"),
+    ("datamodule.batch_size=0", "config key datamodule.batch_size=0 is out of range: batch_size must be in [1, 65536]"),
     ("trainer.max_steps=1.5", "config key trainer.max_steps=1.5: pytorch_lightning.Trainer takes int"),
     ("name=..", "experiment name (name=...), the folder its runs go to, '..' is not a plain folder name"),
     ("name=a/b", "'a/b' is not a plain folder name: it holds a path separator"),

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
 from samp.eval.binding import Provenance, check_binding, unverified_reason
 from samp.eval.problems import Problem
@@ -61,7 +62,11 @@ def test_the_hard_subset_follows_the_straight_line_not_the_planner(panda, blocke
     a, b = problems
     planner = Scripted(panda, {"a": [a.q_start], "b": [b.q_start, mid, b.q_goal]})
     cfg = load_eval_config({"record": False, "timed_problems": 0, "compare_expert": False, "problems": None})
-    report = evaluate_sections(planner, [Section("val", problems, None, "two hand-made problems")], cfg, tmp_path)
+    provenance = Provenance("data@a", "data@a", unverified="no recorded hash")  # recorded as given
+    report = evaluate_sections(planner, [Section("val", problems, None, "two hand-made problems")], cfg, tmp_path,
+                               provenance=provenance)
+    assert (report["trained_on"], report["unverified"]) == ("data@a", "no recorded hash")
+    assert "**Unverified:** no recorded hash." in (tmp_path / "metrics.md").read_text().split("\n|")[0]
     records = [json.loads(line) for line in (tmp_path / "problems.jsonl").read_text().splitlines()]
     collided = {(r["planner"], r["problem"]): r["collision"] for r in records}
     assert collided == {("scripted", "a"): False, ("scripted", "b"): True, ("straight", "a"): True,
@@ -70,6 +75,31 @@ def test_the_hard_subset_follows_the_straight_line_not_the_planner(panda, blocke
     assert report["metrics"]["val_hard"]["collision_rate"] == 0.0, "the hard subset was taken from the planner's records"
     assert report["straight"]["val_hard"]["collision_rate"] == 1.0
     assert report["metrics"]["val"]["collision_rate"] == 0.5
+
+
+class GridReader(Scripted):
+    """A trajectory planner that reads anchor grids (its `plan` takes `grids`, as samp+check's does)."""
+
+    n_e = 12
+
+    def plan(self, problem, grids=None):
+        self.asked = getattr(self, "asked", []) + [None if grids is None else grids(problem, self.n_e)]
+        return super().plan(problem)
+
+
+def test_a_planner_that_reads_grids_gets_the_section_s_grids(panda, blocked):
+    """`evaluate(..., grids=source)` hands `source` to a trajectory planner whose plan takes grids (samp+check
+    with grid_source=reconstructed must not fall back to the exact grid); without a source, it gets none."""
+    from samp.eval.harness import evaluate
+
+    problems, _ = blocked
+    marker = torch.full((12, 12, 12), 0.5)
+    reader = GridReader(panda, {p.name: [p.q_start] for p in problems})
+    evaluate(reader, problems, {"timed_problems": 0}, grids=lambda problem, n_e: marker)
+    assert len(reader.asked) == 2 and all(g is marker for g in reader.asked), "the section's grids were not handed over"
+    plain = GridReader(panda, {p.name: [p.q_start] for p in problems})
+    evaluate(plain, problems, {"timed_problems": 0})
+    assert plain.asked == [None, None]
 
 
 # ---------------------------------------------------------------------------------------------- unseen check

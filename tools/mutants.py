@@ -132,6 +132,7 @@ MUTANTS = [
 
 # The protocol pass: the definitions a reported number rests on (which problems are hard, which scenes are
 # unseen, what samp+check calls clear, which dataset and run a number belongs to, which run fills a table).
+NEWEST = 'return max(found, key=lambda r: (r.protocol or 0, str(r.record.get("start") or ""))) if found else None'  # samp/runs/paper.py: which run fills a row
 PROTOCOL_MUTANTS = [
     Mutant("P01", "samp/eval/report.py", 'straight = results.get("straight") or results[planner.name]',
            "straight = results[planner.name]", PROTOCOL, "the hard subset from the planner's records"),
@@ -159,14 +160,12 @@ PROTOCOL_MUTANTS = [
            "the train split of another dataset is reported as the policy's training scenes"),
     Mutant("P12", "samp/eval/binding.py", "if rel not in hashes:", "if False:", BINDING,
            "a checkpoint added after the run ended counts as verified"),
-    Mutant("P13", "samp/runs/paper.py",
-           'return max(found, key=lambda r: (r.protocol or 0, str(r.record.get("start") or ""))) if found else None',
+    Mutant("P13", "samp/runs/paper.py", NEWEST,
            'return max(found, key=lambda r: str(r.record.get("start") or "")) if found else None', PAPER,
            "the paper tables take the newest run whatever its evaluation protocol"),
     Mutant("P14", "samp/runs/paper.py", 'r.status == "completed" and r.evaluation]', "r.evaluation]", PAPER,
            "a running run fills a paper table's row"),
-    Mutant("P15", "samp/runs/paper.py",
-           'return max(found, key=lambda r: (r.protocol or 0, str(r.record.get("start") or ""))) if found else None',
+    Mutant("P15", "samp/runs/paper.py", NEWEST,
            'return min(found, key=lambda r: (r.protocol or 0, str(r.record.get("start") or ""))) if found else None',
            PAPER, "the paper tables take the oldest run"),
     Mutant("P16", "samp/data/registry.py", 'if actual != info["sha256"]:',

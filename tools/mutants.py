@@ -177,7 +177,7 @@ PROTOCOL_MUTANTS = [
     Mutant("P18", "samp/data/registry.py", 'return Path(max(candidates, key=lambda d: d["created"])["path"])',
            'return Path(min(candidates, key=lambda d: d["created"])["path"])', REGISTRY,
            "a dataset name resolves to its oldest dataset"),
-    Mutant("P19", "samp/data/registry.py", 'h.update(f"{rel}\0{files[rel]}\n".encode())', 'h.update(f"{rel}\n".encode())',
+    Mutant("P19", "samp/data/registry.py", r'h.update(f"{rel}\0{files[rel]}\n".encode())', r'h.update(f"{rel}\n".encode())',
            REGISTRY, "the dataset id ignores the files' contents"),
     Mutant("P20", "samp/robot_sdf/robot_points.py", "i = t.nan_to_num(0).floor().clamp(max=self.samples - 2).long()",
            "i = t.nan_to_num(0).round().clamp(max=self.samples - 2).long()", TABLES,

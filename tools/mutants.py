@@ -10,7 +10,8 @@ Each mutant is one text replacement in one file (the old text must occur exactly
 that should notice it. With the bug planted, the fast tier of the module's own test folder runs first
 (`tests/<package>/ -m "not slow"`, what a developer changing that module runs); when it passes, the
 mutant's listed test files run in full, slow tests included. The verdict names the tier that caught it:
-"fast", "slow", or "survived" when both pass. `--listed` runs the listed files alone (the pass as it was
+"fast" (its own folder's fast tests), "slow" (only its listed files: slow tests, or tests of another folder),
+"survived" when both pass, or "stale" when its text no longer occurs once in the file (the pass goes on). `--listed` runs the listed files alone (the pass as it was
 before tiers). The file is always restored: in a `finally`, on Ctrl-C too, and a copy of the original is
 kept in `/tmp/samp_mutants/<this tree>/` until it is restored. The tests should pass on the clean tree
 first (`--baseline` checks that). Sub-processes get OMP_NUM_THREADS=1 and a per-test timeout.
@@ -86,8 +87,8 @@ MUTANTS = [
            "d = torch.stack([local[..., 1:].norm(dim=-1) - radius", SDF, "cylinder radius over (y, z)"),
     Mutant("M12", "samp/scene/sdf.py", 'torch.einsum("nkj,kji->nki", points[:, None, :] - t, R)',
            'torch.einsum("nkj,kij->nki", points[:, None, :] - t, R)', SDF, "obstacle frame R instead of R^T"),
-    Mutant("M13", "samp/scene/grid.py", "return (2 * (points - lo) / (hi - lo) - 1).flip(-1)",
-           "return (2 * (points - lo) / (hi - lo) - 1)", GRID, "grid coordinates not reordered to (z, y, x)"),
+    Mutant("M13", "samp/scene/grid.py", "return (2 * (points - lo) / span - 1).flip(-1)",
+           "return (2 * (points - lo) / span - 1)", GRID, "grid coordinates not reordered to (z, y, x)"),
     Mutant("M14", "samp/scene/grid.py", 'mode="bilinear", padding_mode="border", align_corners=True',
            'mode="bilinear", padding_mode="border", align_corners=False', GRID, "half-voxel shift"),
     Mutant("M15", "samp/scene/grid.py", "torch.linspace(lo[i], hi[i], n_e, dtype=dtype)",
@@ -211,11 +212,15 @@ def run_tests(tests: tuple[str, ...], timeout: int, marks: str | None = None) ->
         return False, time.time() - start, "timed out"
 
 
+class StaleMutant(ValueError):
+    """A mutant whose text no longer occurs exactly once in its file (the code moved on): reported, not run."""
+
+
 def plant(m: Mutant) -> tuple[Path, str]:
     path = ROOT / m.file
     text = path.read_text()
     if text.count(m.old) != 1:
-        raise SystemExit(f"{m.id}: the text to replace occurs {text.count(m.old)} times in {m.file}, not once")
+        raise StaleMutant(f"the text to replace occurs {text.count(m.old)} times in {m.file}, not once: update the mutant")
     BACKUP.mkdir(parents=True, exist_ok=True)
     shutil.copy2(path, BACKUP / (m.file.replace("/", "__") + ".orig"))
     path.write_text(text.replace(m.old, m.new))
@@ -263,7 +268,12 @@ def main() -> None:
             ok, seconds, tail = run_tests(m.tests, args.timeout)
             print(f"{m.id} clean tree {'passes' if ok else 'FAILS'} ({seconds:.0f} s) {tail}", flush=True)
             continue
-        path, original = plant(m)
+        try:
+            path, original = plant(m)
+        except StaleMutant as err:
+            results.append({"id": m.id, "file": m.file, "what": m.what, "verdict": "stale", "seconds": 0})
+            print(f"{m.id} stale    {err}", flush=True)
+            continue
         try:
             tier, seconds, tail = verdict(m, args.timeout, args.listed)
         finally:
@@ -272,7 +282,7 @@ def main() -> None:
         results.append({"id": m.id, "file": m.file, "what": m.what, "verdict": tier, "seconds": round(seconds)})
         print(f"{m.id} {tier:8s} ({seconds:4.0f} s) {m.file}: {m.what} | {tail}", flush=True)
     if results:
-        caught = [r for r in results if r["verdict"] != "survived"]
+        caught = [r for r in results if r["verdict"] not in ("survived", "stale")]
         tiers = ", ".join(f"{sum(r['verdict'] == t for r in results)} {t}" for t in ("fast", "slow", "caught")
                           if any(r["verdict"] == t for r in results))
         print(f"caught {len(caught)} of {len(results)}" + (f" ({tiers})" if tiers else ""))

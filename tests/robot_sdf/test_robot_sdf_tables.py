@@ -1,7 +1,8 @@
 """The robot SDF's one-joint tables (`SelfDistances` with K angles) in the fast tier, on a small untrained
 hash grid: at the tabulated angles the tabled query equals the full network query (the oracle, every pair
 evaluated), and between them each table is read by linear interpolation of its two neighbouring angles
-(checked against numpy on the stored values)."""
+(checked against numpy on the stored values). And its values are metres: far from the robot, a metre
+further along a ray is a metre more."""
 
 from __future__ import annotations
 
@@ -13,16 +14,21 @@ K = 9
 
 
 @pytest.fixture(scope="module")
-def sdf(robots, small_robot_sdf):
-    from samp.robot_sdf.artifact import build_net
-    from samp.robot_sdf.whole_robot import RobotSDF
+def sdf(untrained_sdf):
+    return untrained_sdf
 
-    robot = robots["panda"]
-    payload = small_robot_sdf(robot, spread=True)  # values far from zero: many pairs count
-    info = payload["info"]
-    net = build_net(info["net"])
-    net.load_state_dict(payload["state_dict"])
-    return RobotSDF(robot, net, torch.tensor(info["centres"]), torch.tensor(info["scales"]), "test", {}).eval()
+
+def test_far_from_the_robot_the_distance_grows_a_metre_per_metre(sdf):
+    """Far outside every link's box, the robot SDF is the metric distance to the nearest box plus a constant
+    (the network's value at the box corner): one metre further along a ray adds one metre. Values left in
+    the links' normalised units would add 1 / scale instead."""
+    robot = sdf.robot
+    q = robot.home.to(robot.dtype)[None]
+    ray = torch.tensor([0.6, -0.48, 0.64], dtype=robot.dtype)  # a unit vector
+    points = torch.stack([ray * 60.0, ray * 61.0])[None]  # (1, 2, 3) metres from the base
+    with torch.no_grad():
+        near, far = sdf.query(points, q, cull=False)[0].tolist()
+    assert far - near == pytest.approx(1.0, abs=1e-3), f"one metre further changed the distance by {far - near}"
 
 
 def _at(robot, fraction: float) -> torch.Tensor:

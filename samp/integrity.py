@@ -24,7 +24,7 @@ from samp.names import CHECKPOINTS_DIR, RUN_JSON
 from samp.paths import file_sha256
 
 __all__ = ["FILES_SHA256", "TRUST_ENV", "IntegrityError", "check_recorded_hash", "hash_run_files", "load_torch_file",
-           "safe_globals", "trusted"]
+           "run_of", "safe_globals", "trusted"]
 
 TRUST_ENV = "SAMP_TRUST_CHECKPOINTS"
 FILES_SHA256 = "files_sha256"  # run.json: {path relative to the run folder: sha256}
@@ -105,7 +105,7 @@ def _load(torch, path: Path, what: str, kwargs: dict):
                              "is truncated or damaged; restore it, or train the run again") from None
 
 
-def _run_of(path: Path) -> Path | None:
+def run_of(path: Path) -> Path | None:
     """The run folder holding `path` (its folder, or the one above `checkpoints/`), if it has a run.json."""
     for folder in (path.parent, path.parent.parent):
         if (folder / RUN_JSON).is_file():
@@ -125,7 +125,7 @@ def check_recorded_hash(path: str | Path) -> str | None:
     expected and actual on a mismatch. Returns the recorded hash, or None when there is no record to
     compare with (not in a run folder, an older run, or a run still running, whose checkpoints change)."""
     path = Path(path)
-    run = _run_of(path)
+    run = run_of(path)
     if run is None:
         return None
     try:

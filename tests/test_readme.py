@@ -245,6 +245,8 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.eval planner=ompl_sampling dataset=REF",
      Run(f"python -m samp.eval planner=ompl_sampling dataset=smoke {EVAL}",
          ["runs/eval/ompl_sampling_smoke@*/metrics.json"])),
+    ("python -m samp.eval run=runs/EXP/TIME dataset=other allow_other_dataset=true splits=[val] benchmark=null",
+     RunElsewhere("eval/test_eval_binding.py", '"allow_other_dataset=true"')),
     ("python -m samp.eval run=runs/EXP/TIME grid_source=reconstructed out=/tmp/recon",
      Run(f"python -m samp.eval run={{run}} grid_source=reconstructed out={{tmp}}/recon {EVAL}", ["recon/metrics.json"])),
     ("python -m samp.eval run=runs/samp_n100/<timestamp> grid_source=reconstructed out=/tmp/recon",

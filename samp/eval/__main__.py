@@ -186,16 +186,46 @@ def _evaluate(overrides: list[str]) -> Path:
     if run is not None:
         check_robot(run, manifest)
     planner = _planner(cfg, run, manifest)  # a bad checkpoint fails before a benchmark is built
+    provenance, trained = _provenance(cfg, run, planner, ds) if run is not None else (None, None)
     if ds is not None:
         bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
     sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot if hasattr(planner, "robot")
-                                 else None, trained=ds if run is not None else None)
+                                 else None, trained=trained)
     label = f"{ds.name}@{ds.id}" if ds is not None else f"{bench.name}@{bench.id}"
     out = _out_dir(cfg, run, label)
     evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
                       dataset=None if ds is None else f"{ds.name}@{ds.id}",
-                      benchmark=None if bench is None else f"{bench.name}@{bench.id}")
+                      benchmark=None if bench is None else f"{bench.name}@{bench.id}", provenance=provenance)
     return out
+
+
+def _provenance(cfg, run, planner, ds):
+    """(Provenance, the dataset the policy trained on or None) for a run's policy: its checkpoint's binding
+    checked against `ds` (samp.eval.binding), and a checkpoint its run's record does not cover said loudly."""
+    from samp.data import DatasetError, open_dataset
+    from samp.eval.binding import Provenance, check_binding, policy_binding, unverified_reason
+    from samp.eval.loading import find_checkpoint
+
+    binding = policy_binding(planner)
+    trained_on, other = check_binding(binding, ds, run.path, cfg.allow_other_dataset, cfg.splits if ds else [])
+    checkpoint = find_checkpoint(run.path)
+    reason = unverified_reason(checkpoint, binding)
+    if binding is None and reason is None:
+        reason = f"{checkpoint} holds no dataset binding this evaluation can read: which dataset it trained on is unknown"
+    if reason:
+        print(f"warning: {reason}; the results are marked unverified", file=sys.stderr, flush=True)
+    trained = ds
+    if (other or ds is None) and trained_on and ("test" in cfg.splits or cfg.benchmark):
+        try:
+            trained = open_dataset(trained_on, Path(cfg.root) if cfg.root else None)
+        except DatasetError as err:
+            raise ValueError(f"the policy trained on {trained_on}, which cannot be opened ({err}); without its scenes no "
+                             "test or benchmark scene can be shown unseen. Restore that dataset, or evaluate "
+                             "splits=[val] benchmark=null") from None
+    elif other:
+        trained = None  # validation scenes alone: no section claims to be unseen
+    evaluated = None if ds is None else f"{ds.name}@{ds.id}"
+    return Provenance(trained_on, evaluated, other, reason), trained
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -56,6 +56,7 @@ class EvalConfig:
     overwrite: bool = False  # replace the files of an earlier evaluation in `out`
     n_e: int | None = None  # grid resolution: a run's policy is refused at another n_e than its own (null: its own)
     trust_checkpoint: bool = False  # unpickle the run's checkpoint fully (it can run code): only files you trust
+    allow_other_dataset: bool = False  # evaluate a run's policy on another dataset than its checkpoint's own
     device: str = "auto"  # where the policy runs: auto (CUDA when there is a GPU) | cpu | cuda[:N]
     robot_sdf_tables: int | None = None  # samp policies: robot SDF tables (0: exact; null: the policy's own)
     robot_sdf_pairs: str | None = None  # samp policies: all | near (robot SDF pairs of a step; null: the policy's own)

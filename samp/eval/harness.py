@@ -7,6 +7,7 @@ metric code (`samp.eval.metrics`), so the policy and the expert are compared on 
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import asdict, replace
 
 import numpy as np
@@ -20,7 +21,7 @@ from samp.eval.names import ALL_SPLITS
 from samp.eval.planners import StepPolicy, TrajectoryPlanner
 from samp.eval.problems import GridSource, Problem
 
-__all__ = ["evaluate", "planner_name", "resolve_robot"]
+__all__ = ["evaluate", "planner_name", "reads_grids", "resolve_robot"]
 
 
 def planner_name(planner) -> str:
@@ -50,13 +51,25 @@ def resolve_robot(planner, problems: list[Problem], robot=None):
     return robot
 
 
-def _plan_all(planner, problems: list[Problem], robot, bar=None) -> list[RolloutResult | None]:
-    """Answers of a trajectory planner as rollout results (None where it failed), goal errors at the end."""
+def reads_grids(planner) -> bool:
+    """Whether a trajectory planner reads anchor grids: its `plan` takes `grids` (a `GridSource`), as
+    samp+check does; the evaluation then hands it the section's grids (exact or reconstructed)."""
+    try:
+        return "grids" in inspect.signature(planner.plan).parameters
+    except (TypeError, ValueError):  # a builtin or C callable: no signature to read, so no grids
+        return False
+
+
+def _plan_all(planner, problems: list[Problem], robot, bar=None, grids: GridSource | None = None
+              ) -> list[RolloutResult | None]:
+    """Answers of a trajectory planner as rollout results (None where it failed), goal errors at the end.
+    A planner that reads grids (`reads_grids`) plans on `grids`, the section's source."""
     out = []
+    extra = {"grids": grids} if grids is not None and reads_grids(planner) else {}
     for p in problems:
         if bar is not None:
             bar.update()
-        answer = planner.plan(p)
+        answer = planner.plan(p, **extra)
         if answer.trajectory is None:
             out.append(RolloutResult(np.asarray(p.q_start)[None], f"failed: {answer.reason}", answer.solution_time,
                                      [], None, None))
@@ -146,7 +159,8 @@ def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | No
         problems: `Problem`s; metrics are given per `problem.split` and pooled under "all".
         config: a `RolloutConfig` or a mapping of its keys (max_steps, tolerances, sub-steps, stall, batch_size).
         robot: the robot to check with (default: the planner's, else the one the problems name).
-        grids: where a policy's anchor grids come from (default: each scene's exact `anchor_grid`).
+        grids: where a policy's anchor grids come from (default: each scene's exact `anchor_grid`); also handed
+            to a trajectory planner whose `plan` takes `grids` (samp+check), so it steps and checks on them.
         progress_s: show progress (rollout batches, plans, checks) on stderr: a bar on a terminal, else a
             line every `progress_s` seconds and one per phase at its end; None: silent.
     Returns:
@@ -177,7 +191,7 @@ def evaluate(planner, problems: list[Problem], config: RolloutConfig | dict | No
             with Progress(len(subset), f"  {name} {split}: {'rollouts' if is_policy else 'plans'}", "problem",
                           every_s=progress_s or 0.0, enabled=progress_s is not None) as bar:
                 results = _rollout_batches(planner, subset, cfg, grids, checker_robot, bar) if is_policy else \
-                    _plan_all(planner, subset, checker_robot, bar)
+                    _plan_all(planner, subset, checker_robot, bar, grids)
             with Progress(len(subset), f"  {name} {split}: checks", "problem", every_s=progress_s or 0.0,
                           enabled=progress_s is not None) as bar:
                 checked = _records(planner, subset, results, checker, cfg, bar)

@@ -144,9 +144,11 @@ def _evaluate_section(planner, section: Section, cfg, expert) -> dict:
 
 
 def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_path: Path | None = None,
-                      dataset: str | None = None, benchmark: str | None = None) -> dict:
+                      dataset: str | None = None, benchmark: str | None = None, provenance=None) -> dict:
     """Evaluate `planner` (and the expert and the straight line) on every section, write the files into
-    `out` (which must exist) and return the report (the content of metrics.json)."""
+    `out` (which must exist) and return the report (the content of metrics.json). `provenance`: a
+    `samp.eval.binding.Provenance` (a run's checkpoint evaluated from its folder): its record goes into
+    metrics.json and what it qualifies (another dataset, an unverified checkpoint) under the report's title."""
     from samp.eval.loading import load_planner
     from samp.eval.metrics import summarize
 
@@ -176,7 +178,10 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
     report = {"protocol": PROTOCOL, "planner": planner.name, "run": str(run_path) if run_path else None,
               "dataset": dataset, "benchmark": benchmark, "groups": groups, "metrics": blocks[planner.name],
               **{other: blocks.get(other) if planner.name != other else None for other in ("expert", "straight")}}
-    return _write(out, cfg, report, planner, problems, records, results_all, sections)
+    if provenance is not None:
+        report.update(provenance.record())
+    heading = provenance.heading() if provenance is not None else ""
+    return _write(out, cfg, report, planner, problems, records, results_all, sections, heading)
 
 
 def _merged(results_all: list[dict], name: str) -> dict | None:
@@ -187,8 +192,9 @@ def _merged(results_all: list[dict], name: str) -> dict | None:
 
 
 def _write(out: Path, cfg, report: dict, planner, problems: list, records: list[dict], results_all: list[dict],
-           sections: list[Section]) -> dict:
-    """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`."""
+           sections: list[Section], heading: str = "") -> dict:
+    """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`; `heading`: lines
+    under metrics.md's title (and above the printed table)."""
     from dataclasses import asdict
 
     from samp.eval.metrics import markdown_table
@@ -206,12 +212,12 @@ def _write(out: Path, cfg, report: dict, planner, problems: list, records: list[
     if reconstructions:
         report["reconstruction"] = reconstructions[0].report()
     (out / METRICS_JSON).write_text(json.dumps(report, indent=2))
-    title = f"# {report['planner']} (evaluation protocol {PROTOCOL})"
+    title = f"# {report['planner']} (evaluation protocol {PROTOCOL})" + (f"\n\n{heading}" if heading else "")
     (out / METRICS_MD).write_text(f"{title}\n\n{sources}\n\n{table}")
     with open(out / PROBLEMS_JSONL, "w") as f:
         for rec in records:
             f.write(json.dumps(rec) + "\n")
-    print("\n" + sources + "\n\n" + table)
+    print("\n" + (heading + "\n\n" if heading else "") + sources + "\n\n" + table)
     written = [METRICS_JSON, METRICS_MD, PROBLEMS_JSONL]
     if cfg.record:
         from samp.eval.recording import write_recording

@@ -12,8 +12,12 @@ segment to it when the grid says that segment is clear too (the learned policy t
 centimetres short of goals close to surfaces). The first candidate to reach the goal with a clear record
 is the answer; when none does, the plain rollout.
 
-The check reads the same anchor grid the policy reads (the scene's exact SDF at n_e anchors), so it costs
-grid samples, not collision queries. Its solution time is the whole call: encoding, steps and checks.
+The check reads the same anchor grid the policy reads, so it costs grid samples, not collision queries:
+the scene's exact SDF at n_e anchors by default, or the grid the evaluation's section hands to `plan`
+(`grids`, a `(problem, n_e) -> grid` source): with `grid_source=reconstructed` both the policy and the check
+see the grid reconstructed from the cameras, never the exact one. Its solution time is the whole call:
+encoding, steps and checks (fetching or reconstructing the grid is not timed, as for the rollout
+engine's step policies).
 """
 
 from __future__ import annotations
@@ -99,12 +103,25 @@ class CheckedPolicy:
         steps = max(1, int(np.ceil(dist / FINISH_RESOLUTION)))
         return float(self._clearance(grid, bounds, q[None], goal[None], steps)[0]) > self.cfg.margin
 
-    def plan(self, problem) -> PlannedTrajectory:
-        """problem: a `samp.eval.Problem` (its scene, q_start, q_goal) -> the chosen trajectory."""
+    def _grid_env(self, problem, grids) -> EnvBatch:
+        """The one-scene `EnvBatch` both the policy and the check read: the scene's exact anchor grid, or
+        `grids(problem, n_e)` (the evaluation's grid source), after checking the scene's bounds."""
+        if grids is None:
+            return self.policy._environment(problem.scene)
+        bounds = np.asarray(self.policy.system.bounds, dtype=np.float64)
+        if not np.allclose(np.asarray(problem.scene.bounds, dtype=np.float64), bounds, atol=1e-9):
+            raise ValueError(f"scene {problem.scene.name!r} has workspace bounds {problem.scene.bounds}; the policy "
+                             f"was trained on {self.policy.system.bounds}")
+        return self.policy._environment(grids(problem, self.n_e))
+
+    def plan(self, problem, grids=None) -> PlannedTrajectory:
+        """problem: a `samp.eval.Problem` (its scene, q_start, q_goal) -> the chosen trajectory.
+        grids: None (the scene's exact anchor grid) or a grid source `(problem, n_e) -> (n_e, n_e, n_e)`,
+        the grid the policy steps on and the candidates are checked against."""
         cfg, robot, policy = self.cfg, self.robot, self.policy
         dev, dt = robot.device, robot.dtype
+        env1 = self._grid_env(problem, grids)  # before the clock, as the rollout engine fetches grids untimed
         t0 = time.perf_counter()
-        env1 = policy._environment(problem.scene)
         K = cfg.candidates
         env = EnvBatch(env1.grids, env1.bounds, torch.zeros(K, dtype=torch.long, device=dev))
         grid, bounds = env1.grids[0], policy.system.bounds

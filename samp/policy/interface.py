@@ -91,7 +91,9 @@ class PlannedTrajectory:
 
 @runtime_checkable
 class TrajectoryPlanner(Protocol):
-    """A planner that answers a whole problem at once: `plan(problem) -> PlannedTrajectory`."""
+    """A planner that answers a whole problem at once: `plan(problem) -> PlannedTrajectory`. One that reads
+    anchor grids takes them as `plan(problem, grids=None)` (a `(problem, n_e) -> grid` source, samp+check):
+    the evaluation then hands it the grids of the section (exact or reconstructed)."""
 
     name: str
 

@@ -14,7 +14,8 @@ Cells are the benchmark group's: solution time one problem at a time (B = 1), pa
 percent with their Wilson 95 % interval, and success on the benchmark's hard subset. A row filled by a
 protocol-1 run shows that evaluation's "training / held-out scenes" values as the paper had them, its
 label marked "(protocol 1: train / held-out)", never mixed silently with the benchmark's rows. Every table
-names the benchmark and the datasets its rows' runs used in its title, and the run of each row.
+names the benchmark and the datasets its rows' runs used in its title, and the run of each row, marked
+"[unverified]" or "[trained on NAME@ID]" when its evaluation says so (`samp.eval.binding`).
 """
 
 from __future__ import annotations
@@ -129,7 +130,11 @@ def _alone(root: Path, planner: str) -> _Evaluation | None:
 def _of_run(run: Run | None) -> _Evaluation | None:
     if run is None:
         return None
-    return _Evaluation(run.evaluation, f"{run.name} ({run.evaluation.get('dataset') or run.record.get('dataset_id')})")
+    report = run.evaluation
+    marks = ([f"trained on {report.get('trained_on')}"] if report.get("other_dataset") else []) + \
+        (["unverified"] if report.get("unverified") else [])  # samp.eval.binding: numbers not tied to the run
+    return _Evaluation(report, f"{run.name} ({report.get('dataset') or run.record.get('dataset_id')})"
+                       + "".join(f" [{m}]" for m in marks))
 
 
 def _filling(row: Row, runs: list[Run], root: Path) -> _Evaluation | None:

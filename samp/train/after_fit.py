@@ -38,6 +38,7 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     (`evaluation.benchmark`), with the expert and the straight line beside it; writes `<run_dir>/eval/`
     and the plots (`samp.runs.figures`)."""
     from samp.eval.benchmark import open_benchmark
+    from samp.eval.binding import Provenance
     from samp.eval.config import load_eval_config
     from samp.eval.report import evaluate_sections, protocol_sections
     from samp.names import EVAL_DIR, PLOTS_DIR, SUMMARY_PNG
@@ -55,8 +56,10 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot, trained=ds)
     out = Path(run_dir) / EVAL_DIR
     out.mkdir(parents=True, exist_ok=True)
+    # the model just fitted, in memory: tied to its dataset by construction (its binding), nothing to verify
+    provenance = Provenance(system.dataset_id, f"{ds.name}@{ds.id}")
     report = evaluate_sections(planner, sections, cfg, out, run_path=Path(run_dir), dataset=f"{ds.name}@{ds.id}",
-                               benchmark=None if bench is None else f"{bench.name}@{bench.id}")
+                               benchmark=None if bench is None else f"{bench.name}@{bench.id}", provenance=provenance)
     try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
         from samp.runs.plots import plot_run_summary
         from samp.runs.registry import load_run

@@ -68,3 +68,18 @@ def fit():
     """`fit_sdf` as a fixture: test modules take it as an argument instead of importing conftest (which
     `--import-mode=importlib` does not allow)."""
     return fit_sdf
+
+
+@pytest.fixture(scope="session")
+def untrained_sdf(robots, small_robot_sdf):
+    """A whole-robot `RobotSDF` for the float64 Panda from the small untrained hash grid with spread tables
+    (values far from zero, so many point-link pairs count): seconds to build, for the fast tests."""
+    from samp.robot_sdf.artifact import build_net
+    from samp.robot_sdf.whole_robot import RobotSDF
+
+    payload = small_robot_sdf(robots["panda"], spread=True)
+    info = payload["info"]
+    net = build_net(info["net"])
+    net.load_state_dict(payload["state_dict"])
+    return RobotSDF(robots["panda"], net, torch.tensor(info["centres"]), torch.tensor(info["scales"]), "test",
+                    {}).eval()

@@ -1,0 +1,174 @@
+"""samp+check's protocol, fast and against oracles: it checks candidates on the grid it is given (the
+evaluation's section grids, reconstructed ones included, never the scene's exact grid behind them), it
+prefers a clear candidate to an unclear one, and it never answers a candidate whose clearance is below its
+margin as clear.
+
+The policy is a stand-in whose steps are known (a straight joint-space step towards its target), so which
+candidate is clear is decided by the grid alone. The clearance oracle uses a linear field f(p) = b - d . p
+as the grid: trilinear interpolation reproduces a linear field exactly, so the check's clearance of a path
+is the field's minimum over the robot points along it (clamped into the bounds, as the grid's border is),
+computed here without the grid."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from samp.eval.problems import Problem
+from samp.policy.checked import CheckConfig, CheckedPolicy
+from samp.policy.interface import clamp_to_limits
+from samp.policy.plan import Plannable
+from samp.scene.grid import anchor_points
+from samp.scene.model import DEFAULT_BOUNDS, Box, Pose, Scene
+
+N_E = 12
+MARGIN = 0.05
+
+
+class LinePolicy(Plannable):
+    """A step policy that ignores its grid: at most 0.1 rad (Euclidean) per step towards its target. It keeps
+    the grids it was reset with, to show which grid samp+check handed it."""
+
+    def __init__(self, robot, n_e: int = N_E):
+        self.robot, self.n_e, self.name = robot, n_e, "line"
+        self.system = SimpleNamespace(bounds=DEFAULT_BOUNDS)
+        self.seen: list[torch.Tensor] = []
+
+    def reset(self, env) -> None:
+        self.seen.append(env.grids[0].clone())
+
+    def step(self, q, target, env):
+        delta = target - q
+        norm = delta.norm(dim=1, keepdim=True).clamp(min=1e-12)
+        return clamp_to_limits(self.robot, q + torch.clamp(0.1 / norm, max=1.0) * delta)
+
+
+@pytest.fixture(scope="module")
+def panda(robots):
+    return robots["panda"]
+
+
+@pytest.fixture(scope="module")
+def problem(panda):
+    home = panda.home.double().numpy()
+    goal = home + np.array([1.5, 0.4, 0.0, 0.5, 0.0, 0.0, 0.0])
+    return Problem(Scene("empty"), home, goal, name="linear-field")
+
+
+def _field(d, b: float):
+    """The source of the linear grid f(p) = b - d . p at the anchors (float32, as stored grids are)."""
+    grid = (b - anchor_points(N_E, DEFAULT_BOUNDS) @ torch.tensor(d, dtype=torch.float64)).float()
+    return lambda problem, n_e: grid
+
+
+def _clearance(robot, trajectory: np.ndarray, d, b: float, substeps: int = 3) -> float:
+    """The oracle: min of b - d . p over the robot points at the start and `substeps` configurations per step."""
+    q = torch.as_tensor(trajectory, dtype=torch.float64)
+    t = torch.arange(1, substeps + 1, dtype=torch.float64) / substeps
+    states = torch.cat([q[:1], (q[:-1, None] + t[None, :, None] * (q[1:] - q[:-1])[:, None]).reshape(-1, q.shape[1])])
+    lo, hi = (torch.tensor(v, dtype=torch.float64) for v in DEFAULT_BOUNDS)
+    points = torch.maximum(torch.minimum(robot.transform_points(states), hi), lo)
+    return float((b - points @ torch.tensor(d, dtype=torch.float64)).min())
+
+
+def _plain_extent(panda, problem, d) -> float:
+    """min of -d . p along the plain rollout (candidate 0 alone, the goal straight ahead)."""
+    alone = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=1, margin=MARGIN))
+    trajectory = alone.plan(problem, grids=_field(d, 100.0)).trajectory
+    return _clearance(panda, trajectory, d, 0.0), trajectory
+
+
+@pytest.mark.parametrize("d", [(1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)])
+def test_a_candidate_below_the_margin_is_never_answered_as_clear(panda, problem, d):
+    """The field is set so that the plain rollout's clearance is 0.02 m, inside (0, margin): it must not win.
+    Whatever is answered as clear (plain or via) has the oracle's clearance above the margin; otherwise the
+    answer is the plain rollout, counted unclear."""
+    extent, plain = _plain_extent(panda, problem, d)
+    b = 0.02 - extent
+    assert _clearance(panda, plain, d, b) == pytest.approx(0.02)
+    checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=MARGIN))
+    answer = checked.plan(problem, grids=_field(d, b)).trajectory
+    got = _clearance(panda, answer, d, b)
+    assert checked.chosen["plain"] == 0, f"the plain rollout (clearance 0.02 < margin {MARGIN}) was taken as clear"
+    if checked.chosen["via"]:
+        assert got > MARGIN, f"a detour answered as clear has clearance {got:.4f} <= margin {MARGIN}"
+    else:
+        assert checked.chosen == {"plain": 0, "via": 0, "unclear": 1, "unreached": 0}, checked.chosen
+        assert np.array_equal(answer, plain) and got < MARGIN
+
+
+def test_a_clear_candidate_is_picked_over_an_unclear_one(panda, problem):
+    """With the field along -y, the plain rollout passes 0.02 m from the zero level (unclear) while a detour
+    stays clear: that detour is the answer, its oracle clearance above the margin, and it reaches the goal."""
+    d = (0.0, -1.0, 0.0)
+    extent, plain = _plain_extent(panda, problem, d)
+    b = 0.02 - extent
+    checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=MARGIN))
+    result = checked.plan(problem, grids=_field(d, b))
+    assert checked.chosen == {"plain": 0, "via": 1, "unclear": 0, "unreached": 0}, checked.chosen
+    assert _clearance(panda, result.trajectory, d, b) > MARGIN
+    assert not np.array_equal(result.trajectory[: len(plain)], plain[: len(result.trajectory)])
+    from samp.robot.goal import ee_poses, goal_errors
+
+    pos, rot = goal_errors(ee_poses(panda, result.trajectory[-1:]), ee_poses(panda, problem.q_goal[None]))
+    assert result.reason == "" and pos[0] < 0.02 and rot[0] < 15.0, "the detour answered must reach the goal"
+    clear = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=MARGIN))
+    assert np.array_equal(clear.plan(problem, grids=_field(d, b + 1.0)).trajectory, plain), \
+        "with every candidate clear, the plain rollout (the first to reach) is the answer"
+    assert clear.chosen["plain"] == 1
+
+
+@pytest.fixture(scope="module")
+def blocked(panda):
+    """A problem whose straight joint-space line passes through a box (around the end effector halfway),
+    the scene with the box, and the same scene without it: a reconstruction that missed the box."""
+    home = panda.home.double().numpy()
+    start, goal = home + [-0.9, 0, 0, 0, 0, 0, 0], home + [0.9, 0, 0, 0, 0, 0, 0]
+    from samp.eval.checks import ee_poses
+
+    centre = ee_poses(panda, ((start + goal) / 2)[None])[0, :3, 3]
+    scene = Scene("boxed", (Box("box", (0.25, 0.25, 0.25), Pose(tuple(float(v) for v in centre))),))
+    far = Box("far", (0.05, 0.05, 0.05), Pose((-0.9, -0.9, 0.1)))  # a scene's SDF needs one obstacle
+    return Problem(scene, start, goal, name="boxed", robot="panda"), Scene("boxed-missed", (far,))
+
+
+def test_samp_check_checks_on_the_grid_it_is_given_not_the_exact_one(panda, blocked):
+    """On the exact grid the box blocks the plain rollout; on a reconstruction that missed the box the plain
+    rollout is clear and is the answer. The policy steps on that grid too (the one it was reset with)."""
+    problem, missed = blocked
+    exact = CheckedPolicy(LinePolicy(panda, 16), CheckConfig(candidates=4))
+    exact.plan(problem)
+    assert exact.chosen["plain"] == 0, "the exact grid must see the box on the straight path"
+    asked = []
+
+    def reconstructed(p, n_e):
+        asked.append((p.name, n_e))
+        return missed.anchor_grid(n_e)
+
+    policy = LinePolicy(panda, 16)
+    checked = CheckedPolicy(policy, CheckConfig(candidates=4))
+    checked.plan(problem, grids=reconstructed)
+    assert asked == [("boxed", 16)], asked
+    assert checked.chosen["plain"] == 1, f"the check read the exact grid, not the reconstruction: {checked.chosen}"
+    assert torch.equal(policy.seen[-1].float(), missed.anchor_grid(16).float()), "the policy stepped on another grid"
+
+
+def test_the_evaluation_hands_samp_check_its_section_grids(panda, blocked):
+    """`evaluate(..., grids=source)` passes the section's grid source to a planner whose plan takes grids."""
+    from samp.eval.harness import evaluate, reads_grids
+
+    problem, missed = blocked
+    asked = []
+
+    def source(p, n_e):
+        asked.append(n_e)
+        return missed.anchor_grid(n_e)
+
+    checked = CheckedPolicy(LinePolicy(panda, 16), CheckConfig(candidates=2))
+    assert reads_grids(checked) and not reads_grids(SimpleNamespace(plan=lambda problem: None))
+    result = evaluate(checked, [problem], {"timed_problems": 0}, grids=source)
+    assert asked == [16] and checked.chosen["plain"] == 1
+    assert result["records"][0]["collision"], "collisions are still checked against the true scene"

@@ -286,7 +286,6 @@ def import_dataset(sources: list[Path], cfg: ImportConfig, root: Path | None = N
     from tqdm import tqdm
 
     from samp.data.generation import _robot
-    from samp.data.mcap_io import write_scene_file
     from samp.data.merging import build_manifest
     from samp.data.registry import datasets_root, finalize_dataset
     from samp.expert.config import load_expert_config
@@ -315,8 +314,8 @@ def import_dataset(sources: list[Path], cfg: ImportConfig, root: Path | None = N
             for index, ref in enumerate(refs):
                 split = "val" if ref in val else "train"
                 mine = [r for r in recorded if r.scene == ref]
-                infos.append(_import_scene(robot, expert, cfg, ref, index, split, mine, tmp, config_hash, summary,
-                                           write_scene_file, bar))
+                infos.append(_import_scene(_Target(robot, expert, cfg, tmp, config_hash), ref, index, split, mine,
+                                           summary, bar))
         manifest = build_manifest(config, config_hash, cfg.seed, robot.asset_hash, infos,
                                   parents=config["sources"])
         manifest.update(code_version=code_version(), versions=package_versions())
@@ -341,15 +340,28 @@ def scene_from_ref(ref: str):
     return load_scene_file(resolve_scene_file(ref))
 
 
-def _import_scene(robot, expert, cfg: ImportConfig, ref: str, index: int, split: str, mine: list[Recorded],
-                  out: Path, config_hash: str, summary: dict, write_scene_file, bar) -> dict:
+@dataclass
+class _Target:
+    """What every scene of one import shares: the robot, the expert config, the settings, where the scene files
+    go and the import's config hash."""
+
+    robot: object
+    expert: object
+    cfg: ImportConfig
+    out: Path
+    config_hash: str
+
+
+def _import_scene(target: _Target, ref: str, index: int, split: str, mine: list[Recorded], summary: dict,
+                  bar) -> dict:
     """Check one scene's trajectories, plan its evaluation problems, write its scene file -> its manifest entry."""
     from samp.data.generation import EVAL_PLANS, EVAL_PROBLEMS, _plan_problems, link_poses
-    from samp.data.mcap_io import SceneRecord
+    from samp.data.mcap_io import SceneRecord, write_scene_file
     from samp.data.registry import SCENE_FILE_VERSION
     from samp.expert.planner import make_planner
     from samp.expert.seeding import derive_seed
 
+    robot, expert, cfg, out = target.robot, target.expert, target.cfg, target.out
     scene = scene_from_ref(ref)
     episodes, kept = [], []
     with make_planner(robot, scene, expert) as planner:
@@ -373,7 +385,7 @@ def _import_scene(robot, expert, cfg: ImportConfig, ref: str, index: int, split:
             (EVAL_PROBLEMS, EVAL_PLANS), "evaluation", lambda: None, f"scene {ref}", 0.0, stages)
     file = f"scene_{index:04d}.mcap"
     n = robot.dof
-    metadata = {"format_version": SCENE_FILE_VERSION, "dataset": cfg.name, "config_hash": config_hash,
+    metadata = {"format_version": SCENE_FILE_VERSION, "dataset": cfg.name, "config_hash": target.config_hash,
                 "robot": cfg.robot, "robot_asset_hash": robot.asset_hash, "scene_index": index, "split": split,
                 "generator": "import", "scene_namespace": "import", "scene_seed": 0}
     write_scene_file(out / file, SceneRecord(

@@ -5,7 +5,7 @@ nothing of samp, so every layer may use it."""
 from __future__ import annotations
 
 __all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "BATCH_START", "BATCH_STEP", "BATCH_STEP_CLEAN", "BATCH_TRAJ", "BEST_CKPT",
-           "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE", "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX",
+           "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE", "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX", "HPARAMS_YAML",
            "LAST_CHECKPOINT", "METRICS_CSV", "METRICS_JSON", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL",
            "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRAIN_LOG", "TRAIN_PREFIX",
            "VAL_PREFIX"]
@@ -13,6 +13,7 @@ __all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "
 # ---------------------------------------------------------------- a run folder (docs/design.md section 6)
 RUN_JSON = "run.json"
 METRICS_CSV = "metrics.csv"
+HPARAMS_YAML = "hparams.yaml"  # the model's hyperparameters, beside metrics.csv (the CSV logger)
 CONFIG_DIR = ".hydra"
 CHECKPOINTS_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.ckpt"

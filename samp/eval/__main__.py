@@ -153,7 +153,8 @@ def _evaluate(overrides: list[str]) -> Path:
     # Heavy imports only once the config is known to be good.
     from samp.eval.benchmark import open_benchmark
     from samp.eval.loading import check_robot, find_checkpoint, read_run
-    from samp.eval.report import evaluate_sections, protocol_sections
+    from samp.eval.report import evaluate_sections, flat_report, protocol_sections
+    from samp.runs.tracking import track_evaluation
 
     if (cfg.run is None) == (cfg.planner is None):
         raise ValueError("say what to evaluate: run=RUN_DIR (a trained policy) or planner=expert|straight dataset=REF, "
@@ -178,9 +179,11 @@ def _evaluate(overrides: list[str]) -> Path:
                                  else None, trained=ds if run is not None else None)
     label = f"{ds.name}@{ds.id}" if ds is not None else f"{bench.name}@{bench.id}"
     out = _out_dir(cfg, run, label)
-    evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
-                      dataset=None if ds is None else f"{ds.name}@{ds.id}",
-                      benchmark=None if bench is None else f"{bench.name}@{bench.id}")
+    report = evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
+                               dataset=None if ds is None else f"{ds.name}@{ds.id}",
+                               benchmark=None if bench is None else f"{bench.name}@{bench.id}")
+    # into the run's own MLflow run, as a section named after `out` (samp.runs.tracking)
+    track_evaluation(out, report, flat_report(report, report["planner"]), run_path=run.path if run else None)
     return out
 
 

@@ -187,7 +187,14 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.train -m sweep=data_scaling", Compose("-m sweep=data_scaling", LONG)),
     ("python -m samp.train -m sweep=loss_terms", Compose("-m sweep=loss_terms", LONG)),
     ("python -m samp.train experiment=samp_cpu loss=paper", Compose("experiment=samp_cpu loss=paper", LONG)),
-    ("python -m samp.train experiment=samp_n100 logger=mlflow", Compose("experiment=samp_n100 logger=mlflow", LONG)),
+    ("SAMP_TRACKING_URI=http://mlflow.example.org:5000 python -m samp.train experiment=samp_n100",
+     RunElsewhere("runs/test_runs_tracking.py", 'env={"SAMP_TRACKING_URI": rest.url}')),
+    ("python -m samp.train experiment=samp_n100 tracking.uri=off", Compose("experiment=samp_n100 tracking.uri=off", LONG)),
+    ("python -m samp.train experiment=samp_n100 logger=tensorboard",
+     RunElsewhere("runs/test_runs_tracking.py", '"logger=tensorboard"')),
+    ("tensorboard --logdir runs/samp_n100", RunElsewhere("runs/test_runs_tracking.py", "EventAccumulator(str(folder")),
+    ("python -m samp.train experiment=samp_n100 'logger=[tensorboard,wandb]'",
+     Compose("experiment=samp_n100 'logger=[tensorboard,wandb]'", LONG)),
     ("python -m samp.train experiment=samp_n100 logger=wandb", Compose("experiment=samp_n100 logger=wandb", LONG)),
     ("python -m samp.train experiment=mpinet [trainer=gpu] [datamodule.dataset=NAME@ID]",
      Compose("experiment=mpinet", "tests/policy/test_baselines_cli.py trains and evaluates it shrunk")),
@@ -349,7 +356,8 @@ STEPS: list[tuple[str, object]] = [
     ("python tools/mutants.py --list", Run("python {repo}/tools/mutants.py --list")),
     ("pip install -e '.[mlflow]'", Skip("installs packages")),
     ("pip install -e '.[wandb]'", Skip("installs packages")),
-    ("mlflow ui --backend-store-uri sqlite:///runs/mlflow.db", Skip("starts a web server")),
+    ("mlflow ui --backend-store-uri sqlite:///runs/mlflow.db",
+     RunElsewhere("runs/test_runs_tracking.py", '"server", "--backend-store-uri", f"sqlite:///{runs}/mlflow.db"')),
 ]
 
 # The camera set docs/perception.md shows as a YAML example, used by the `camera=path/to/my_cameras.yaml` step.

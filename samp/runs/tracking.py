@@ -28,7 +28,7 @@ TRACKING_ENV = "SAMP_TRACKING_URI"
 OFF = "off"
 TRACKING_DB = "mlflow.db"  # the local store, in the runs folder
 ARTIFACTS_DIR = "mlflow-artifacts"  # a local store's artifacts, in the runs folder
-SWEEP_STATE = ".tracking.json"  # in a sweep's folder: {uri: parent run id}
+SWEEP_STATE_PREFIX = ".mlflow-sweep-"  # + a hash of the store's URI: the sweep's parent run there (sweep_parent)
 EVAL_EXPERIMENT = "eval"  # evaluations of a planner without a run folder
 # Not uploaded: checkpoints and exported networks (large, and the run folder keeps them), other loggers' folders.
 SKIPPED = ("checkpoints", "tensorboard", "wandb", ".hydra")
@@ -126,27 +126,31 @@ def _sweep_experiment(sweep_dir: str, runs_dir: str | Path) -> str:
 
 
 def sweep_parent(sweep_dir: str, uri: str, experiment: str) -> str:
-    """The id of the sweep's parent run in `uri`: made by the first member to ask, under a lock on a file in
-    the sweep's folder (members may run in parallel processes), and found again by later members and by a
-    rerun of the sweep."""
-    import fcntl
+    """The id of the sweep's parent run in store `uri`, kept in a file of the sweep's folder: found again by
+    later members and by a rerun of the sweep. Members may start at once in several processes or hosts, so
+    the file is claimed without a lock (some cluster file systems have none): each writes its own complete
+    file and hard-links it into place, which succeeds for one; the others delete the parent they made and
+    take the winner's."""
+    import hashlib
 
     folder = Path(sweep_dir)
     folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / f"{SWEEP_STATE}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        state_path = folder / SWEEP_STATE
-        state = json.loads(state_path.read_text()) if state_path.is_file() else {}
-        if uri not in state:
-            mlflow_client = client(uri)
-            run = mlflow_client.create_run(experiment_id(mlflow_client, uri, experiment), run_name=folder.name,
-                                           tags={"samp.sweep_dir": str(folder.resolve()), "samp.kind": "sweep"})
-            mlflow_client.set_terminated(run.info.run_id)  # a container: its members hold the runs
-            state[uri] = run.info.run_id
-            tmp = state_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(state, indent=2))
-            tmp.replace(state_path)
-        return state[uri]
+    state = folder / f"{SWEEP_STATE_PREFIX}{hashlib.sha256(uri.encode()).hexdigest()[:12]}.json"
+    if state.is_file():
+        return json.loads(state.read_text())["run_id"]
+    mlflow_client = client(uri)
+    run = mlflow_client.create_run(experiment_id(mlflow_client, uri, experiment), run_name=folder.name,
+                                   tags={"samp.sweep_dir": str(folder.resolve()), "samp.kind": "sweep"})
+    mlflow_client.set_terminated(run.info.run_id)  # a container: its members hold the metrics
+    mine = folder / f"{state.name}.{os.getpid()}.tmp"
+    mine.write_text(json.dumps({"tracking_uri": uri, "run_id": run.info.run_id}, indent=2))
+    try:
+        os.link(mine, state)
+    except FileExistsError:  # another member was first
+        mlflow_client.delete_run(run.info.run_id)
+    finally:
+        mine.unlink()
+    return json.loads(state.read_text())["run_id"]
 
 
 def log_files(mlflow_client, run_id: str, folder: Path, artifact_path: str | None = None,

@@ -69,10 +69,18 @@ def _artifact_location(uri: str, experiment: str) -> str | None:
 
 def experiment_id(mlflow_client, uri: str, name: str) -> str:
     """The id of experiment `name`, created (with a local store's artifact folder) when missing."""
+    from mlflow.exceptions import MlflowException
+
     found = mlflow_client.get_experiment_by_name(name)
     if found is not None:
         return found.experiment_id
-    return mlflow_client.create_experiment(name, artifact_location=_artifact_location(uri, name))
+    try:
+        return mlflow_client.create_experiment(name, artifact_location=_artifact_location(uri, name))
+    except MlflowException:  # made meanwhile by another process (sweep members in parallel), else raised again
+        found = mlflow_client.get_experiment_by_name(name)
+        if found is None:
+            raise
+        return found.experiment_id
 
 
 def _previous(record: dict) -> dict:

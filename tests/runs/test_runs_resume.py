@@ -22,7 +22,8 @@ def resumed(tmp_path_factory, cli, tiny_sdf, stop_at_first_checkpoint):
     runs = tmp_path_factory.mktemp("resume_runs")
     args = ["+experiment=robot_sdf_panda", f"trainer.max_steps={STEPS}", "callbacks.model_checkpoint.every_n_train_steps=10",
             *tiny_sdf]
-    proc = cli("samp.train", args, runs, popen=True, prelude=stop_at_first_checkpoint)
+    tracked = {"SAMP_TRACKING_URI": None}  # into the local store, the default (the suite turns it off)
+    proc = cli("samp.train", args, runs, popen=True, prelude=stop_at_first_checkpoint, env=tracked)
     ckpts = runs / "robot_sdf_panda"
     output: list[str] = []
     reader = threading.Thread(target=lambda: output.append(proc.stdout.read()), daemon=True)  # keeps the pipe open
@@ -43,7 +44,7 @@ def resumed(tmp_path_factory, cli, tiny_sdf, stop_at_first_checkpoint):
     assert proc.returncode != 0, killed[-2000:]
     (folder,) = ckpts.iterdir()
     after_kill = json.loads((folder / "run.json").read_text())
-    again = cli("samp.train", [f"resume={folder}"], runs)
+    again = cli("samp.train", [f"resume={folder}"], runs, env=tracked)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-3000:]
     return runs, folder, killed, after_kill, again
 

@@ -36,6 +36,7 @@ QUICKSTART = ["+experiment=quickstart", "datamodule.dataset=smoke", "datamodule.
               "trainer.enable_progress_bar=false", "evaluation.problems=1", "evaluation.benchmark=null",
               "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']",
               "logger=tensorboard"]
+LOCAL = {"SAMP_TRACKING_URI": None}  # the default: the local store under the runs folder (the suite turns it off)
 REEVAL = ["problems=1", "splits=[val]", "benchmark=null", "record=false"]
 
 
@@ -125,7 +126,7 @@ def server(tmp_path_factory):
 def quickstart(server, cli):
     """The quickstart run's folder and run.json, tracked in the local store (no tracking setting given)."""
     runs, _ = server
-    proc = cli("samp.train", QUICKSTART, runs, timeout=900)
+    proc = cli("samp.train", QUICKSTART, runs, timeout=900, env=LOCAL)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     (folder,) = (runs / "quickstart").iterdir()
     return folder, json.loads((folder / "run.json").read_text())
@@ -226,7 +227,7 @@ def test_a_sweep_on_the_server_has_its_members_as_child_runs(server, cli, tiny_s
 def test_a_reevaluation_is_a_new_section_of_the_same_run(server, quickstart, cli):
     runs, rest = server
     folder, record = quickstart
-    proc = cli("samp.eval", [f"run={folder}", *REEVAL], runs)
+    proc = cli("samp.eval", [f"run={folder}", *REEVAL], runs, env=LOCAL)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     run_id = record["loggers"]["mlflow"]["run_id"]
     assert f"tracked: {record['loggers']['mlflow']['tracking_uri']} run {run_id} (eval-2)" in proc.stdout

@@ -182,16 +182,15 @@ def log_dataset(mlflow_client, run_id: str, ref: str | None, root: str | Path | 
     and its folder under `root` as the source; nothing for a run without a dataset."""
     if not ref or "@" not in ref:
         return
-    from mlflow.data.filesystem_dataset_source import FileSystemDatasetSource
-    from mlflow.data.meta_dataset import MetaDataset
-    from mlflow.entities import DatasetInput, InputTag
+    from mlflow.entities import Dataset, DatasetInput, InputTag
     from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
 
     name, _, content_id = ref.partition("@")
-    source = FileSystemDatasetSource(str(Path(root or ".") / name / content_id))
-    dataset = MetaDataset(source=source, name=name, digest=content_id)
-    mlflow_client.log_inputs(run_id, [DatasetInput(dataset._to_mlflow_entity(),
-                                                   [InputTag(MLFLOW_DATASET_CONTEXT, context)])])
+    where = str(root or "")
+    scheme = where.partition("://")[0] if "://" in where else "local"  # a remote reference keeps its scheme
+    uri = f"{where.rstrip('/')}/{name}/{content_id}" if scheme != "local" else str(Path(where or ".") / name / content_id)
+    dataset = Dataset(name=name, digest=content_id, source_type=scheme, source=json.dumps({"uri": uri}))
+    mlflow_client.log_inputs(run_id, [DatasetInput(dataset, [InputTag(MLFLOW_DATASET_CONTEXT, context)])])
 
 
 def finish_training(logger, record: dict, run_dir: Path) -> None:

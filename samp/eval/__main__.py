@@ -7,7 +7,9 @@ training scenes, never trained on), and the standing benchmark of unseen scenes,
 straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (without a run:
 `<runs folder>/eval/PLANNER_DATASET@ID/`; or `out=DIR`): metrics.json, metrics.md, problems.jsonl and
 recording.rrd. An earlier evaluation there is kept and the new one goes beside it (`eval-2/`, ...), unless
-`overwrite=true`. Settings: conf/eval.yaml (schema: samp/eval/config.py).
+`overwrite=true`. The evaluation is also logged to MLflow (`samp.runs.tracking`): a run's into its own MLflow
+run, as a section named after the folder (`eval-2/...`), unless `SAMP_TRACKING_URI=off`. Settings:
+conf/eval.yaml (schema: samp/eval/config.py).
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
+from samp.names import TRACKING_ARTIFACTS_DIR
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import flatten
 from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rate, pooled_interval, protocol_of
@@ -122,7 +123,9 @@ def scan_runs(root: Path | str) -> tuple[list[Run], list[tuple[Path, str]]]:
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no such folder: {root}")
-    paths = [root] if (root / RUN_JSON).is_file() else sorted(p.parent for p in root.rglob(RUN_JSON))
+    # (a local MLflow store's artifacts hold copies of run.json: not runs of their own)
+    paths = [root] if (root / RUN_JSON).is_file() else sorted(
+        p.parent for p in root.rglob(RUN_JSON) if TRACKING_ARTIFACTS_DIR not in p.relative_to(root).parts)
     runs, damaged = [], []
     for p in paths:
         try:

@@ -21,13 +21,13 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["ARTIFACTS_DIR", "OFF", "TRACKING_DB", "TRACKING_ENV", "client", "log_dataset", "log_files",
+from samp.names import TRACKING_ARTIFACTS_DIR, TRACKING_DB
+
+__all__ = ["OFF", "TRACKING_ENV", "client", "log_dataset", "log_files",
            "resolve_uri", "sweep_parent", "track_evaluation", "tracked_at", "training_logger"]
 
 TRACKING_ENV = "SAMP_TRACKING_URI"
 OFF = "off"
-TRACKING_DB = "mlflow.db"  # the local store, in the runs folder
-ARTIFACTS_DIR = "mlflow-artifacts"  # a local store's artifacts, in the runs folder
 SWEEP_STATE_PREFIX = ".mlflow-sweep-"  # + a hash of the store's URI: the sweep's parent run there (sweep_parent)
 EVAL_EXPERIMENT = "eval"  # evaluations of a planner without a run folder
 # Not uploaded: checkpoints and exported networks (large, and the run folder keeps them), other loggers' folders.
@@ -64,7 +64,7 @@ def client(uri: str):
 
 def _artifact_location(uri: str, experiment: str) -> str | None:
     root = _local_root(uri)
-    return None if root is None else (root / ARTIFACTS_DIR / experiment).resolve().as_uri()
+    return None if root is None else (root / TRACKING_ARTIFACTS_DIR / experiment).resolve().as_uri()
 
 
 def experiment_id(mlflow_client, uri: str, name: str) -> str:
@@ -186,9 +186,10 @@ def log_dataset(mlflow_client, run_id: str, ref: str | None, root: str | Path | 
     from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
 
     name, _, content_id = ref.partition("@")
-    where = str(root or "")
-    scheme = where.partition("://")[0] if "://" in where else "local"  # a remote reference keeps its scheme
-    uri = f"{where.rstrip('/')}/{name}/{content_id}" if scheme != "local" else str(Path(where or ".") / name / content_id)
+    where = str(root or ".")
+    remote = "://" in where  # a remote datasets folder (s3://...) keeps its scheme as the source type
+    uri = f"{where.rstrip('/')}/{name}/{content_id}" if remote else str(Path(where) / name / content_id)
+    scheme = where.partition("://")[0] if remote else "local"
     dataset = Dataset(name=name, digest=content_id, source_type=scheme, source=json.dumps({"uri": uri}))
     mlflow_client.log_inputs(run_id, [DatasetInput(dataset, [InputTag(MLFLOW_DATASET_CONTEXT, context)])])
 

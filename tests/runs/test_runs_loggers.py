@@ -1,5 +1,6 @@
 """The loggers a run can have (conf/logger/, lists of them) and where it is tracked: the CSV log against
-Lightning's own CSVLogger as the oracle of its format, continued across a resume; the tracking URI."""
+Lightning's own CSVLogger as the oracle of its format, continued across a resume; the tracking URI; the local
+store's artifacts beside the runs. (What the store holds: test_runs_tracking.py.)"""
 
 from __future__ import annotations
 
@@ -109,3 +110,21 @@ def test_the_train_config_has_tracking_on_by_default():
     cfg = compose_train_config(["+experiment=robot_sdf_panda"])
     assert cfg.tracking.uri is None and cfg.tracking.recording is True
     assert compose_train_config(["+experiment=robot_sdf_panda", "tracking.uri=off"]).tracking.uri == "off"
+
+
+def test_copies_of_run_json_in_the_local_stores_artifacts_are_not_runs(tmp_path):
+    """The local store keeps its artifacts in the runs folder (`mlflow-artifacts/`), run.json among them:
+    scanning the runs folder finds the run once, in its own folder."""
+    import shutil
+
+    from samp.names import TRACKING_ARTIFACTS_DIR
+    from samp.runs import RunFolder
+    from samp.runs.registry import scan_runs
+
+    run = RunFolder.create(tmp_path, "quickstart")
+    run.update(status="completed", experiment="quickstart")
+    copy = tmp_path / TRACKING_ARTIFACTS_DIR / "quickstart" / "0123abcd" / "artifacts"
+    copy.mkdir(parents=True)
+    shutil.copy2(run.path / "run.json", copy / "run.json")
+    runs, damaged = scan_runs(tmp_path)
+    assert [r.path for r in runs] == [run.path] and damaged == []

@@ -96,16 +96,17 @@ def tracked_at(record: dict) -> tuple[str, str] | None:
 def training_logger(cfg, folder):
     """A Lightning MLFlowLogger for the training run in `folder` (None when tracking is off): params from its
     resolved config, tags from its lineage, a child of its sweep's run when it is a sweep member, and the same
-    MLflow run (in the store it was started in) when the folder is resumed. Rank 0 only."""
+    MLflow run (in the store it was started in) when the folder is resumed. Rank 0 only.""" 
     from pytorch_lightning.loggers import MLFlowLogger
 
     from samp.runs.lineage import flatten, lineage_tags
 
+    configured = resolve_uri(cfg.tracking.uri, cfg.paths.runs_dir)
+    if configured is None:  # off wins, a resumed run's store included
+        return None
     record = folder.read()
     previous = tracked_at(record)
-    uri = previous[0] if previous else resolve_uri(cfg.tracking.uri, cfg.paths.runs_dir)
-    if uri is None:
-        return None
+    uri = previous[0] if previous else configured
     mlflow_client = client(uri)
     sweep = record.get("sweep") or {}
     experiment = _sweep_experiment(sweep["dir"], cfg.paths.runs_dir) if sweep else str(cfg.name)
@@ -219,12 +220,13 @@ def track_evaluation(out: Path, report: dict, metrics: dict[str, float], run_pat
     from samp.runs.lineage import flatten, lineage_tags
     from samp.paths import runs_root
 
-    section = out.name
+    configured = resolve_uri(None, runs_root())
+    if configured is None:  # off wins, a tracked run's store included
+        return None
+    section = _section(out, run_path)
     record = RunFolder(run_path).read() if run_path is not None else {}
     previous = tracked_at(record)
-    uri = previous[0] if previous else resolve_uri(None, runs_root())
-    if uri is None:
-        return None
+    uri = previous[0] if previous else configured
     mlflow_client = client(uri)
     if previous:
         run_id = previous[1]
@@ -249,6 +251,16 @@ def track_evaluation(out: Path, report: dict, metrics: dict[str, float], run_pat
         mlflow_client.set_terminated(run_id)
     print(f"tracked: {uri} run {run_id} ({section})", flush=True)
     return run_id
+
+
+def _section(out: Path, run_path: Path | None) -> str:
+    """The evaluation's section: `eval` for an evaluation without a run (the MLflow run is the evaluation),
+    else its folder's name (`eval-2`; `out=/tmp/bench` gives `bench`) in the characters MLflow allows in names."""
+    import re
+
+    from samp.names import EVAL_DIR
+
+    return EVAL_DIR if run_path is None else re.sub(r"[^\w\-. /]", "_", Path(out).name)
 
 
 def _log_params(mlflow_client, run_id: str, params: dict) -> None:

@@ -7,7 +7,7 @@
 * a two-member sweep tracked on the server itself (`SAMP_TRACKING_URI=http://...`, a team's server): its
   members are child runs of the sweep's run, their artifacts uploaded through the server;
 * a re-evaluation of the quickstart run (`samp.eval run=...`, into `eval-2/`): a new section of the same
-  MLflow run, not a new run.
+  MLflow run, not a new run; an evaluation of the straight line without a run: a run of the experiment `eval`.
 
 The server serves the same sqlite file the local runs write, as `mlflow ui --backend-store-uri
 sqlite:///runs/mlflow.db` does (docs/runs.md)."""
@@ -240,6 +240,22 @@ def test_a_reevaluation_is_a_new_section_of_the_same_run(server, quickstart, cli
     assert {"eval-2/metrics.md", "eval-2/problems.jsonl", "eval-2/metrics.json"} <= rest.artifacts(run_id, "eval-2")
     assert [v for _, v in rest.history(run_id, "eval/samp/val/success_rate")] == [
         pytest.approx(record["metrics"]["eval/samp/val/success_rate"])], "the first evaluation's section changed"
+
+
+def test_an_evaluation_without_a_run_is_a_run_of_the_eval_experiment(server, quickstart, cli):
+    runs, rest = server
+    _, record = quickstart
+    proc = cli("samp.eval", ["planner=straight", "dataset=smoke", *REEVAL], runs, env=LOCAL)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    (run,) = rest.runs("eval")
+    assert run["info"]["run_name"] == f"eval/straight_{record['dataset_id']}" and run["info"]["status"] == "FINISHED"
+    report = json.loads((runs / "eval" / f"straight_{record['dataset_id']}" / "metrics.json").read_text())
+    got = rest.history(run["info"]["run_id"], "eval/straight/val/success_rate")
+    assert [v for _, v in got] == [pytest.approx(report["metrics"]["val"]["success_rate"])]
+    (dataset,) = run["inputs"]["dataset_inputs"]
+    assert dataset["dataset"]["digest"] == record["dataset_id"].split("@")[1]
+    assert {t["key"]: t["value"] for t in dataset["tags"]} == {"mlflow.data.context": "evaluation"}
+    assert {"eval/metrics.md", "eval/problems.jsonl"} <= rest.artifacts(run["info"]["run_id"])
 
 
 def test_ls_and_show_say_where_runs_are_tracked(server, quickstart, cli):

@@ -56,10 +56,20 @@ def client(uri: str):
     except ModuleNotFoundError:
         raise ModuleNotFoundError("tracking needs the MLflow client: pip install -e . (it installs mlflow-skinny), "
                                   f"or turn tracking off with {TRACKING_ENV}=off") from None
-    root = _local_root(uri)
-    if root is not None:
-        root.mkdir(parents=True, exist_ok=True)
-    return MlflowClient(tracking_uri=uri)
+    if not uri.startswith("sqlite:///"):
+        return MlflowClient(tracking_uri=uri)
+    # A local store is opened (created, or migrated) under a lock on a file beside it: MLflow creates a new
+    # store's tables in steps that fail when two processes do it at once (sweep members in parallel). A file
+    # system SQLite works on has the locks this needs.
+    import fcntl
+
+    db = Path(uri.removeprefix("sqlite:///"))
+    db.parent.mkdir(parents=True, exist_ok=True)
+    with open(db.with_name(db.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        mlflow_client = MlflowClient(tracking_uri=uri)
+        mlflow_client.search_experiments(max_results=1)  # the store is made (or checked) by its first use
+    return mlflow_client
 
 
 def _artifact_location(uri: str, experiment: str) -> str | None:

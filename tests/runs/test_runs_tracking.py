@@ -267,3 +267,22 @@ def test_ls_and_show_say_where_runs_are_tracked(server, quickstart, cli):
     listed = cli("samp.runs", ["ls", "experiment=quickstart"], runs)
     assert listed.returncode == 0 and run_id in listed.stdout and f"tracked in {uri}: 1 run(s)" in listed.stdout, \
         listed.stdout + listed.stderr
+
+
+def test_which_files_become_artifacts(server, tmp_path):
+    """Checkpoints, exported networks, other loggers' folders and hidden files stay out; recordings go only
+    when asked (`tracking.recording`)."""
+    from samp.runs.tracking import client, experiment_id, log_files
+
+    _, rest = server
+    for name in ("eval/metrics.md", "eval/recording.rrd", "checkpoints/last.ckpt", "robot_sdf.pt", "tensorboard/ev",
+                 ".hydra/config.yaml", ".run.json.tmp", "plots/summary.png"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(name)
+    mlflow_client = client(rest.url)
+    experiment = experiment_id(mlflow_client, rest.url, "files")
+    for recording, want in ((False, ["eval/metrics.md", "plots/summary.png"]),
+                            (True, ["eval/metrics.md", "eval/recording.rrd", "plots/summary.png"])):
+        run_id = mlflow_client.create_run(experiment).info.run_id
+        assert log_files(mlflow_client, run_id, tmp_path, recording=recording) == want
+        assert rest.artifacts(run_id) == set(want)

@@ -7,14 +7,17 @@ TORCH_VERSION ?= 2.13.0
 TORCH_CPU_INDEX ?= https://download.pytorch.org/whl/cpu
 STAMP := $(VENV)/.samp-installed
 
-.PHONY: install demo test test-fast bench docs docs-serve clean-cache
+.PHONY: install lock demo test test-fast bench docs docs-serve clean-cache
 
 install: $(STAMP)
 
 # torch is installed first and only when missing: on a machine without an NVIDIA GPU we take a local
 # CPU wheel if pip's find-links has one (its dependencies come with the package install below), else
 # the CPU index, so no CUDA packages are ever pulled there.
-$(STAMP): pyproject.toml
+# constraints.txt pins every package to the version the test suite passed with: a dataset's bytes (and so its
+# content id) depend on the numeric libraries, so the same clone must install the same versions. `make lock`
+# rewrites it from the current environment after an upgrade has passed `make test`.
+$(STAMP): pyproject.toml constraints.txt
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@if ! $(PY) -c "import torch" >/dev/null 2>&1; then \
 	  if command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1; then \
@@ -26,8 +29,14 @@ $(STAMP): pyproject.toml
 	      $(PY) -m pip install "torch==$(TORCH_VERSION)" --index-url $(TORCH_CPU_INDEX) --extra-index-url https://pypi.org/simple; \
 	  fi; \
 	fi
-	$(PY) -m pip install -q -e ".[dev]"
+	$(PY) -m pip install -q -c constraints.txt -e ".[dev]"
 	@touch $(STAMP)
+
+lock: install
+	@{ echo "# Versions the test suite passed with; \`make install\` installs with \`-c constraints.txt\`."; \
+	   echo "# torch is left to the Makefile (CPU or CUDA build); regenerate with \`make lock\`."; \
+	   $(PY) -m pip freeze --exclude-editable | grep -v -i -E '^(torch|samp)=='; } > constraints.txt.new
+	@mv constraints.txt.new constraints.txt && echo "wrote constraints.txt ($$(grep -c '==' constraints.txt) packages)"
 
 # The main job end to end on CPU: builds the quickstart dataset and the small robot SDF when missing (reused
 # by content id afterwards), trains the SAMP policy, evaluates it beside the expert and the straight line,

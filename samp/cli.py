@@ -72,11 +72,12 @@ def compose(config_name: str, overrides: list[str], return_hydra_config: bool = 
 
 
 def output_path(out: str | Path) -> Path:
-    """An output file path; relative paths are taken from the repository root. Its folder is created."""
-    from samp.paths import REPO_ROOT
+    """An output file path; relative paths are taken from the project folder (the clone, or `SAMP_HOME`, or
+    the current folder: `samp.paths.project_dir`). Its folder is created."""
+    from samp.paths import project_dir
 
     path = Path(out)
-    path = path if path.is_absolute() else REPO_ROOT / path
+    path = path if path.is_absolute() else project_dir() / path
     path.parent.mkdir(parents=True, exist_ok=True)
     return path
 
@@ -116,15 +117,18 @@ def config_names(group: str) -> list[str]:
 
 
 def describe(group: str, name: str, width: int = 72) -> str:
-    """The first comment line of conf/<group>/<name>.yaml (after `# @package`), shortened to `width`."""
-    from samp.paths import conf_dir
+    """The first comment line of conf/<group>/<name>.yaml (after `# @package`), shortened to `width`; a
+    config from the user's own folders (`SAMP_CONFIG_PATH`) is marked `[yours]`."""
+    from samp.paths import conf_dir, user_config
 
-    for line in (conf_dir() / group / f"{name}.yaml").read_text().splitlines():
+    path = conf_dir() / group / f"{name}.yaml"
+    mark = "[yours] " if user_config(path) else ""
+    for line in path.read_text().splitlines():
         if line.startswith("#") and not line.startswith("# @package"):
-            return textwrap.shorten(line.lstrip("# ").rstrip(":"), width, placeholder=" ...")
+            return textwrap.shorten(mark + line.lstrip("# ").rstrip(":"), width, placeholder=" ...")
         if line.strip() and not line.startswith("#"):
             break
-    return ""
+    return mark.strip()
 
 
 def wrap(items: list[str], indent: str = "  ", width: int = 100) -> str:

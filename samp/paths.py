@@ -1,37 +1,102 @@
-"""Where samp finds its configs and keeps its caches, and how it fingerprints files.
+"""Where samp finds its configs, where it writes, and how it fingerprints files.
 
-`SAMP_CONF_DIR`, `SAMP_CACHE_DIR` and `SAMP_RUNS_DIR` override the defaults (the repository's `conf/` and
-`$XDG_CACHE_HOME/samp`, i.e. `~/.cache/samp`, and `runs/`).
+Configs: samp's own (`conf/` in a clone, `samp/_conf/` in an installed wheel; `SAMP_CONF_DIR` replaces
+them), with the folders of `SAMP_CONFIG_PATH` (`dir1:dir2`, the user's own `robot/`, `scene/`, `dataset/`,
+`experiment/` ...) in front: `conf_dir()` is then a merged view of all of them (docs/design.md section 8).
+
+Output: runs, datasets and the `SAMP_HOME` project folder default to the clone when samp runs from one,
+else to the current folder (never to site-packages); `SAMP_RUNS_DIR`, `SAMP_DATASETS_DIR` and
+`SAMP_CACHE_DIR` (default `$XDG_CACHE_HOME/samp`, i.e. `~/.cache/samp`) override each.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from pathlib import Path
 
-__all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "file_sha256", "find_checkpoint", "inside",
-           "resolve_asset", "runs_root"]
+__all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "config_path", "file_sha256", "find_checkpoint",
+           "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "source_checkout", "user_config"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+PACKAGED_CONF = Path(__file__).resolve().parent / "_conf"  # where a wheel carries conf/ (see setup.py)
 PYBULLET_DATA_SCHEME = "pybullet_data://"
+_said: set[str] = set()
 
 
-def conf_dir() -> Path:
-    """The Hydra config root (`conf/` beside the package unless `SAMP_CONF_DIR` is set)."""
-    path = Path(os.environ.get("SAMP_CONF_DIR", REPO_ROOT / "conf"))
+def source_checkout() -> bool:
+    """True when samp runs from a clone of its repository (an editable install or the clone on sys.path),
+    False for an installed wheel."""
+    return not PACKAGED_CONF.is_dir() and (REPO_ROOT / "conf").is_dir() and (REPO_ROOT / "pyproject.toml").is_file()
+
+
+def project_dir() -> Path:
+    """The folder whose `runs/` and `datasets/` samp uses by default: `$SAMP_HOME`, else the clone when samp
+    runs from one, else the current folder."""
+    if os.environ.get("SAMP_HOME"):
+        home = Path(os.environ["SAMP_HOME"]).expanduser()
+        if home.exists() and not home.is_dir():
+            raise NotADirectoryError(f"SAMP_HOME={home} is a file, not a folder. Point SAMP_HOME at a folder "
+                                     "(it is created when missing)")
+        home.mkdir(parents=True, exist_ok=True)
+        return home
+    return REPO_ROOT if source_checkout() else Path.cwd()
+
+
+def packaged_conf_dir() -> Path:
+    """samp's own config tree: `$SAMP_CONF_DIR`, else the wheel's `samp/_conf/`, else the clone's `conf/`."""
+    if os.environ.get("SAMP_CONF_DIR"):
+        path = Path(os.environ["SAMP_CONF_DIR"]).expanduser()
+    else:
+        path = PACKAGED_CONF if PACKAGED_CONF.is_dir() else REPO_ROOT / "conf"
     if not path.is_dir():
         raise FileNotFoundError(
-            f"samp's config folder {path} does not exist. Install samp from a clone "
-            "(`pip install -e .`) or point SAMP_CONF_DIR at a folder with samp's `conf/` layout."
-        )
+            f"samp's config folder {path} does not exist. Reinstall samp (`pip install samp-*.whl` or "
+            "`pip install -e .` in a clone), or point SAMP_CONF_DIR at a folder with samp's `conf/` layout.")
     return path
 
 
+def config_path() -> list[Path]:
+    """The user's config folders of `$SAMP_CONFIG_PATH` (`os.pathsep`-separated), in order; each must exist."""
+    folders = []
+    for entry in os.environ.get("SAMP_CONFIG_PATH", "").split(os.pathsep):
+        if not entry.strip():
+            continue
+        path = Path(entry).expanduser().resolve()
+        if not path.is_dir():
+            raise FileNotFoundError(f"SAMP_CONFIG_PATH names {entry!r}, which is not a folder. Create it or "
+                                    "remove it from SAMP_CONFIG_PATH")
+        folders.append(path)
+    return folders
+
+
+def conf_dir() -> Path:
+    """The Hydra config root: samp's own configs, or, with `SAMP_CONFIG_PATH` set, a merged view in which
+    the user's folders come first (their `group/name.yaml` shadow samp's, which is said once)."""
+    own, user = packaged_conf_dir(), config_path()
+    if not user:
+        return own
+    from samp.config_overlay import overlay
+
+    folder, shadowed = overlay([*user, own], cache_dir("config"))
+    for line in shadowed:
+        if line not in _said:
+            _said.add(line)
+            print(f"samp: {line}", file=sys.stderr)
+    return folder
+
+
+def user_config(path: Path) -> Path | None:
+    """The `SAMP_CONFIG_PATH` folder a config file of `conf_dir()` comes from, None for samp's own."""
+    real = Path(path).resolve()
+    return next((folder for folder in config_path() if real.is_relative_to(folder)), None)
+
+
 def runs_root() -> Path:
-    """Where run folders go: `$SAMP_RUNS_DIR`, else `runs/` in the repository (one definition for every
+    """Where run folders go: `$SAMP_RUNS_DIR`, else `runs/` in the project folder (one definition for every
     layer: the evaluation writes stand-alone results there too)."""
-    return Path(os.environ.get("SAMP_RUNS_DIR", REPO_ROOT / "runs"))
+    return Path(os.environ.get("SAMP_RUNS_DIR", project_dir() / "runs"))
 
 
 def cache_dir(*parts: str) -> Path:

@@ -8,7 +8,7 @@ from functools import lru_cache
 from importlib import metadata
 
 from samp import __version__
-from samp.paths import REPO_ROOT
+from samp.paths import REPO_ROOT, source_checkout
 
 __all__ = ["code_version", "package_versions"]
 
@@ -17,6 +17,10 @@ TRACKED_PACKAGES = ("torch", "pytorch-lightning", "hydra-core", "pybullet", "pyt
 
 
 def _git(*args: str) -> str | None:
+    """git's answer about samp's own clone; None for an installed wheel (site-packages may sit inside some
+    other project's repository, whose commit is not samp's)."""
+    if not source_checkout():
+        return None
     try:
         out = subprocess.run(["git", *args], cwd=REPO_ROOT, capture_output=True, text=True, timeout=10)
     except (OSError, subprocess.TimeoutExpired):

@@ -15,6 +15,10 @@ USAGE = """usage: python -m samp.data COMMAND [key=value ...]
   show dataset=REF [root=DIR]           a dataset's manifest: spec, counts, splits, provenance
   verify dataset=REF [root=DIR]         re-hash every file; names each file that differs (exit 1)
   inspect dataset=REF [root=DIR]        per-scene and per-generator statistics, MCAP channels and schemas
+  import source=PATH[,PATH] name=NAME [robot=panda] [scene=REF] [val=REF,...] [resolutions=40]
+         [eval_problems=4] [max_jump=0.5] [key=observation.state] [columns=i,j,...] [root=DIR]
+                                        trajectories recorded elsewhere (.npz, HDF5, a LeRobot folder) as a
+                                        dataset: checked like the expert's, resampled, the refused counted
 For generate and merge, dataset=NAME is a spec, conf/dataset/NAME.yaml (`+dataset=NAME` is read the same),
 and dataset.KEY=VALUE changes one of its settings. Elsewhere REF is NAME (the newest), NAME@ID (an id
 prefix is enough) or a dataset folder, and may be given bare: `python -m samp.data verify quickstart`."""
@@ -203,6 +207,38 @@ def _inspect(args: list[str]) -> None:
               f"{stats.channel_message_counts.get(cid, 0):>6} messages")
 
 
+IMPORT_KEYS = ("source", "name", "robot", "scene", "val", "resolutions", "eval_problems", "max_jump", "key", "columns",
+               "root", "progress")
+
+
+def _import(args: list[str]) -> None:
+    from samp.cli import parse_options
+    from samp.data.importing import ImportConfig, import_dataset
+
+    _, opts, _ = parse_options(args, IMPORT_KEYS, lists=("source", "val", "resolutions", "columns"),
+                               command="import (see `python -m samp.data --help`)")
+    for key in ("source", "name"):
+        if key not in opts:
+            raise ValueError(f"import needs {key}=...: `python -m samp.data import source=demos.npz name=mydemos "
+                             "[scene=REF]` (see docs/datasets.md, Importing demonstrations)")
+    ints = lambda key: [int(v) for v in opts[key]] if key in opts else None  # noqa: E731
+    cfg = ImportConfig(name=opts["name"], robot=opts.get("robot", "panda"), scene=opts.get("scene"),
+                       val=opts.get("val"), resolutions=tuple(ints("resolutions") or (40,)),
+                       eval_problems_per_scene=int(opts.get("eval_problems", 4)),
+                       max_jump=float(opts.get("max_jump", 0.5)), key=opts.get("key", "observation.state"),
+                       columns=ints("columns"))
+    if not (cfg.max_jump > 0 and cfg.max_jump < 10) or cfg.eval_problems_per_scene < 0:
+        raise ValueError(f"max_jump must be in (0, 10) radians and eval_problems >= 0, got {cfg.max_jump}, "
+                         f"{cfg.eval_problems_per_scene}")
+    folder, summary = import_dataset([Path(s) for s in opts["source"]], cfg, _root(opts),
+                                     progress=str(opts.get("progress", "true")).lower() != "false")
+    print(f"imported {summary['kept']} of {summary['kept'] + summary['refused']} trajectories "
+          f"({summary['refused']} refused)")
+    for reason in summary["reasons"]:
+        print(f"  refused {reason}")
+    _print_summary(folder)
+
+
 def _detour_line(wanted, episodes: list[dict], eval_problems: list[dict]) -> str:
     """The share of problems whose straight start-goal line is blocked (recorded per problem from format 3)."""
     parts = []
@@ -218,7 +254,7 @@ def _detour_line(wanted, episodes: list[dict], eval_problems: list[dict]) -> str
 
 def main(argv: list[str] | None = None) -> int:
     commands = {"generate": _generate, "merge": _merge, "ls": _ls, "show": _show, "verify": _verify,
-                "inspect": _inspect}
+                "inspect": _inspect, "import": _import}
     return run_command(argv, _help, commands)
 
 

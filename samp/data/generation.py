@@ -177,7 +177,8 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
         robot = _robot(spec.robot)
         where = f"dataset spec {spec.name!r}, scene {job.index} (generator {job.generator!r}, seed {job.seed})"
         try:
-            scene = scene_from_config(spec.generator_config(job.generator), job.seed)
+            scene = (spec.file_scene(job.scene_file) if job.scene_file else
+                     scene_from_config(spec.generator_config(job.generator), job.seed))
         except ValueError as err:
             raise GenerationError(f"{where}: {err}") from None
         t0 = time.perf_counter()

@@ -22,7 +22,7 @@ import shutil
 from datetime import datetime, timezone
 from pathlib import Path
 
-from samp.paths import REPO_ROOT, check_name, file_sha256, inside
+from samp.paths import check_name, file_sha256, inside
 
 __all__ = ["FORMAT_VERSION", "MANIFEST", "READABLE_VERSIONS", "SCENE_FILE_VERSION", "DatasetError", "content_id",
            "datasets_root", "file_problems", "finalize_dataset", "list_datasets", "manifest_hash", "read_manifest",
@@ -46,7 +46,10 @@ class DatasetError(ValueError):
 
 
 def datasets_root() -> Path:
-    return Path(os.environ.get("SAMP_DATASETS_DIR", REPO_ROOT / "datasets"))
+    """`$SAMP_DATASETS_DIR`, else `datasets/` in the project folder (`samp.paths.project_dir`)."""
+    from samp.paths import project_dir
+
+    return Path(os.environ.get("SAMP_DATASETS_DIR", project_dir() / "datasets"))
 
 
 def content_id(files: dict[str, str]) -> str:

@@ -41,7 +41,7 @@ if __name__ == "__main__":
         sys.exit(f"error: {err}")
     import os
 
-    from samp.paths import REPO_ROOT
+    from samp.paths import project_dir
 
-    os.chdir(REPO_ROOT)  # Hydra's sweep folder (runs/data_shards/ unless SAMP_RUNS_DIR): from the repository, as elsewhere
+    os.chdir(project_dir())  # Hydra's sweep folder (runs/data_shards/ unless SAMP_RUNS_DIR): from the project folder, as elsewhere
     main()

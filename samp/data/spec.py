@@ -8,7 +8,10 @@ the expert config, the share of problems drawn to need a detour (`detour_share`,
 ordered train, then val, then test; scene i uses generator `generators[i % len(generators)]` and seed
 `derive_seed(seed, namespace_key(scene_namespace), i)`, so two specs share scenes only when they share
 seed and namespace (by default the spec's name). Test scenes get no demonstrations: nothing of them can
-reach training. `config_hash` is sha256 over the resolved spec, including the full expert config and each
+reach training. `scene_files` adds scenes read from files (samp's scene JSON/YAML or a cell URDF,
+`samp.scene.files`) to each split; they come after the generated scenes, in the order listed, and the
+resolved spec carries each file's scene content hash, so editing a file gives another dataset.
+`config_hash` is sha256 over the resolved spec, including the full expert config and each
 generator's parameters, so a change anywhere gives a different hash.
 """
 
@@ -28,7 +31,10 @@ from samp.expert.seeding import derive_seed
 from samp.paths import conf_dir
 from samp.scene.registry import _load_config as load_generator_config
 
-__all__ = ["DatasetSpec", "SceneJob", "available_specs", "check_overrides", "load_spec", "namespace_key"]
+__all__ = ["FILE_GENERATOR", "SPLIT_ORDER", "DatasetSpec", "SceneJob", "available_specs", "check_overrides", "load_spec", "namespace_key"]
+
+SPLIT_ORDER = ("train", "val", "test")
+FILE_GENERATOR = "file"  # the `generator` of a scene read from a file
 
 # Keys of older specs (two splits, train and heldout), and what replaced them.
 RETIRED_KEYS = {"heldout_scenes": "val_scenes and test_scenes (validation scenes drive the validation loss and the "
@@ -60,10 +66,11 @@ class DatasetSpec:
     resolutions: list[int] = field(default_factory=lambda: [40])  # anchor grids stored per scene (n_e)
     expert: str = "default"  # a name in conf/expert/ or a YAML path
     expert_overrides: dict[str, Any] = field(default_factory=dict)  # nested keys of the expert config
+    scene_files: dict[str, list[str]] = field(default_factory=dict)  # split -> scene files, after the generated
 
     @property
     def num_scenes(self) -> int:
-        return self.train_scenes + self.val_scenes + self.test_scenes
+        return self.train_scenes + self.val_scenes + self.test_scenes + sum(map(len, self.scene_files.values()))
 
     @property
     def namespace(self) -> str:
@@ -87,7 +94,18 @@ class DatasetSpec:
         out["generator_configs"] = {g: self.generator_config(g) for g in self.generators}
         if not out["detour_share"]:  # the default: left out, so specs from before the key keep their hash (and
             del out["detour_share"]  # their datasets, e.g. the standing benchmark, are found, not regenerated)
+        if any(out["scene_files"].values()):  # likewise: only specs that name scene files carry the key
+            out["scene_file_hashes"] = {ref: self.file_scene(ref).content_hash()
+                                        for refs in self.scene_files.values() for ref in refs}
+        else:
+            del out["scene_files"]
         return out
+
+    def file_scene(self, ref: str):
+        """The scene of one `scene_files` entry (samp.scene.files)."""
+        from samp.scene.files import load_scene_file, resolve_scene_file
+
+        return load_scene_file(resolve_scene_file(ref))
 
     def config_hash(self) -> str:
         return hashlib.sha256(json.dumps(self.resolved(), sort_keys=True).encode()).hexdigest()
@@ -96,9 +114,15 @@ class DatasetSpec:
         """Every scene of the spec, in index order: train scenes, then val, then test."""
         splits = ["train"] * self.train_scenes + ["val"] * self.val_scenes + ["test"] * self.test_scenes
         key = namespace_key(self.namespace)
-        return [SceneJob(i, self.generators[i % len(self.generators)], derive_seed(self.seed, key, i), split,
+        jobs = [SceneJob(i, self.generators[i % len(self.generators)], derive_seed(self.seed, key, i), split,
                          0 if split == "test" else self.trajectories_per_scene, self.eval_problems_per_scene)
                 for i, split in enumerate(splits)]
+        files = [(split, ref) for split in SPLIT_ORDER for ref in self.scene_files.get(split, [])]
+        for i, (split, ref) in enumerate(files, start=len(jobs)):
+            jobs.append(SceneJob(i, FILE_GENERATOR, derive_seed(self.seed, key, i), split,
+                                 0 if split == "test" else self.trajectories_per_scene, self.eval_problems_per_scene,
+                                 scene_file=ref))
+        return jobs
 
 
 @dataclass(frozen=True)
@@ -111,6 +135,7 @@ class SceneJob:
     split: str  # "train" | "val" | "test"
     trajectories: int  # expert demonstrations to plan (0 in a test scene)
     eval_problems: int  # evaluation problems to plan, stored apart from the demonstrations
+    scene_file: str | None = None  # the scene's file (`generator` is then "file"); None: drawn by `generator`
 
     @property
     def file(self) -> str:
@@ -185,6 +210,20 @@ def _check(spec: DatasetSpec) -> None:
             f"got {spec.eval_problems_per_scene}")
     require(0.0 <= spec.detour_share <= 1.0, f"detour_share must be in [0, 1], got {spec.detour_share}")
     require(len(spec.generators) >= 1, "generators must list at least one scene generator")
+    stray_splits = sorted(set(spec.scene_files) - set(SPLIT_ORDER))
+    require(not stray_splits, f"scene_files has splits {stray_splits}; valid: {list(SPLIT_ORDER)}")
+    for split, refs in spec.scene_files.items():
+        require(len(set(refs)) == len(refs), f"scene_files.{split} lists a file twice: {refs}")
+        for ref in refs:
+            try:
+                spec.file_scene(ref)
+            except (ValueError, FileNotFoundError) as err:
+                require(False, f"scene_files.{split}: {err}")
+    hashes = [spec.file_scene(r).content_hash() for refs in spec.scene_files.values() for r in refs]
+    require(len(set(hashes)) == len(hashes), "scene_files names the same scene twice (two files with one geometry)")
+    require(spec.trajectories_per_scene >= 1 or not any(spec.scene_files.get(s) for s in ("train", "val")),
+            f"trajectories_per_scene must be >= 1 when scene_files has train or val scenes, got "
+            f"{spec.trajectories_per_scene}")
     unknown = sorted(set(spec.generators) - set(available_generators()))
     require(not unknown, f"unknown scene generators {unknown}; available: {available_generators()}")
     stray = sorted(set(spec.generator_overrides) - set(spec.generators))

@@ -1,7 +1,9 @@
-"""`python -m samp.robot show robot=NAME [out=FILE.rrd] [configs=N] [seed=S]`
+"""`python -m samp.robot show robot=NAME ...` and `python -m samp.robot add urdf=PATH name=NAME ...`
 
-Prints a summary of the robot (joints, limits, links, robot points per link and shell) and writes a
+`show` prints a summary of the robot (joints, limits, links, robot points per link and shell) and writes a
 Rerun recording with the link meshes at a few configurations and the robot points coloured by shell.
+`add` writes a new robot's config from its URDF (samp/robot/add.py), loads it and prints the same summary
+and the commands that train its robot SDF and a policy.
 """
 
 from __future__ import annotations
@@ -15,7 +17,10 @@ import torch
 from samp.cli import compose, output_path, run_command
 
 USAGE = """usage: python -m samp.robot show robot=NAME [out=FILE.rrd] [configs=N] [seed=S]
-  show    print a robot's joints, limits, links and robot points; write a Rerun recording of it"""
+       python -m samp.robot add urdf=PATH name=NAME [base=LINK] [ee=LINK] [out=DIR] [samples=N] [seed=S] [force=true]
+  show    print a robot's joints, limits, links and robot points; write a Rerun recording of it
+  add     write DIR/robot/NAME.yaml from a URDF (joints, limits, collision and point links, self-collision
+          exclusions, a collision-free home), load it, and print what to run next"""
 
 
 def summary(robot) -> str:
@@ -82,12 +87,20 @@ def show(overrides: list[str]) -> Path:
 
 def _help() -> str:
     from samp.cli import command_help
+    from samp.robot.add import ADD_OPTIONS
 
-    return f"{USAGE}\n\nshow's options (key=default; conf/robot_show.yaml):\n{command_help('robot_show')}"
+    return (f"{USAGE}\n\nshow's options (key=default; conf/robot_show.yaml):\n{command_help('robot_show')}"
+            f"\n\nadd's options:\n{ADD_OPTIONS}")
+
+
+def add(overrides: list[str]) -> Path:
+    from samp.robot.add import add_robot
+
+    return add_robot(overrides, summary)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_command(argv, _help, {"show": show})
+    return run_command(argv, _help, {"show": show, "add": add})
 
 
 if __name__ == "__main__":

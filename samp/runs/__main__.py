@@ -30,14 +30,14 @@ USAGE = __doc__.split("\n\n", 1)[1].strip()
 
 
 def _root(value: str | None) -> Path:
-    """A folder argument: as given when it exists from here, else from the repository root; default runs/."""
-    from samp.paths import REPO_ROOT
+    """A folder argument: as given when it exists from here, else from the project folder; default runs/."""
+    from samp.paths import project_dir
     from samp.runs import runs_root
 
     if value is None:
         return runs_root()
     path = Path(value).expanduser()
-    return path if path.is_absolute() or path.exists() else REPO_ROOT / path
+    return path if path.is_absolute() or path.exists() else project_dir() / path
 
 
 def _runs(folder: str | None, quiet: bool = False):

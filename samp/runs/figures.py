@@ -175,7 +175,7 @@ def plot_sdf_slice(run: Run, out: Path, problem: int = 0) -> Path:
     expert = next((r for r in records if r["planner"] == "expert" and r["problem"] == record["problem"]
                    and r["group"] == record["group"]), None)
     scene, grid, n_e = _scene_of(run, record)
-    robot = load_robot(run.get("config.robot.name") or "panda", dtype=torch.float64)
+    robot = load_robot(run.robot or "panda", dtype=torch.float64)
 
     def ee(traj) -> np.ndarray:
         with torch.no_grad():

@@ -185,8 +185,12 @@ class Scene:
                      bounds=d.get("bounds", DEFAULT_BOUNDS), meta=dict(d.get("meta", {})))
 
     def content_hash(self) -> str:
-        """sha256 over the geometry (not the name or meta) and the contents of any mesh files."""
+        """sha256 over the geometry (not the name or meta) and the contents of any mesh files (not their
+        paths: the same cell read from another folder or machine is the same scene)."""
         geometry = {k: v for k, v in self.to_dict().items() if k not in ("name", "meta")}
+        for o in [*geometry["obstacles"], geometry["target"]]:
+            if o is not None and o["kind"] == "mesh":
+                o.pop("path")
         h = hashlib.sha256(json.dumps(geometry, sort_keys=True).encode())
         for o in self.all_obstacles:
             if isinstance(o, MeshObstacle):

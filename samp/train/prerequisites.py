@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["prepare", "resolve_robot_sdf"]
+__all__ = ["build_overrides", "prepare", "resolve_robot_sdf"]
 
 
 def _experiment_model(name: str) -> str | None:
@@ -85,11 +85,21 @@ def resolve_robot_sdf(ref: str, runs_dir: str | Path | None = None) -> Path:
                             "set system.robot_sdf to a run folder, an artifact, or NAME@ID")
 
 
-def _buildable(ref: str, robot: str) -> bool:
-    """Whether `ref` names a robot SDF experiment of `robot` in conf/experiment/ (robot_sdf_<robot>[_...])."""
+def build_overrides(ref: str, robot: str) -> list[str] | None:
+    """The overrides that train the robot SDF `ref` of `robot`: its own experiment (robot_sdf_<robot>[_...]
+    in conf/experiment/), else the robot-independent one it names with the robot taken out, for the
+    robot (`robot_sdf_myarm_quick`: experiment=robot_sdf_quick robot=myarm); None when neither exists."""
     from samp.paths import conf_dir
 
-    return ref.startswith(f"robot_sdf_{robot}") and (conf_dir() / "experiment" / f"{ref}.yaml").is_file()
+    prefix = f"robot_sdf_{robot}"
+    if not ref.startswith(prefix):
+        return None
+    if (conf_dir() / "experiment" / f"{ref}.yaml").is_file():
+        return [f"experiment={ref}"]
+    generic = "robot_sdf" + ref[len(prefix):]
+    if generic != "robot_sdf" and (conf_dir() / "experiment" / f"{generic}.yaml").is_file():
+        return [f"experiment={generic}", f"robot={robot}"]
+    return None
 
 
 def _robot_sdf(cfg) -> str:
@@ -100,12 +110,13 @@ def _robot_sdf(cfg) -> str:
     try:
         path = resolve_robot_sdf(ref, runs_dir)
     except FileNotFoundError:
-        if not (build.robot_sdf and _buildable(ref, cfg.robot.name)):
+        recipe = build_overrides(ref, cfg.robot.name)
+        if not (build.robot_sdf and recipe):
             raise
     else:
         print(f"robot SDF {ref!r}: {path}", flush=True)
         return str(path)
-    overrides = [f"experiment={ref}", *build.robot_sdf_overrides]
+    overrides = [*recipe, *build.robot_sdf_overrides]
     print(f"robot SDF {ref!r} is not trained yet: running {' '.join(overrides)} (runs in {runs_dir}, datasets in "
           f"{cfg.paths.datasets_dir})", flush=True)
     return str(train(overrides, paths={"runs_dir": runs_dir, "datasets_dir": cfg.paths.datasets_dir}).path)

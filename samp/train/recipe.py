@@ -26,10 +26,10 @@ from samp.train.config import compose_train_config
 __all__ = ["train"]
 
 def _repo_path(path: str) -> Path:
-    from samp.paths import REPO_ROOT
+    from samp.paths import project_dir
 
     p = Path(path).expanduser()
-    return p if p.is_absolute() else REPO_ROOT / p
+    return p if p.is_absolute() else project_dir() / p
 
 
 def _resume_overrides(overrides: list[str], resume: str | Path | None = None) -> list[str]:

@@ -157,12 +157,12 @@ def _is_sweep(override: str) -> bool:
 
 def multirun(argv: list[str]) -> int:
     """Run a sweep (arguments as `python -m samp.train -m ...` takes them, without the `-m`).
-    Relative paths are taken from the repository root, as everywhere in samp."""
+    Relative paths are taken from the project folder (`samp.paths.project_dir`), as everywhere in samp."""
     import hydra
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from samp.paths import REPO_ROOT, conf_dir
+    from samp.paths import conf_dir, project_dir
 
     argv = canonical_overrides("train", argv)  # +experiment=, +sweep= as experiment=, sweep=
     try:
@@ -171,7 +171,7 @@ def multirun(argv: list[str]) -> int:
     except (ValueError, HydraException, OmegaConfBaseException) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    os.chdir(REPO_ROOT)
+    os.chdir(project_dir())
     sys.argv = [sys.argv[0], "--multirun", *argv, *settings]
     hydra.main(config_path=str(conf_dir()), config_name="train", version_base="1.3")(_member)()
     return 0

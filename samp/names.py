@@ -29,7 +29,7 @@ RECONSTRUCTION_RRD = "reconstruction.rrd"  # grid_source=reconstructed: clouds, 
 PLOTS_DIR = "plots"
 SUMMARY_PNG = "summary.png"  # losses and rates of a run, written after training
 TRAIN_LOG = "train.log"  # everything the run printed (samp.runs.console.RunLog)
-# ---------------------------------------------------------------- the runs folder's local MLflow store (samp.runs.tracking)
+# ---------------------------------------------------------------- the runs folder's local MLflow store (samp.tracking)
 TRACKING_DB = "mlflow.db"
 TRACKING_ARTIFACTS_DIR = "mlflow-artifacts"  # its artifacts: copies of run files, never scanned as runs
 

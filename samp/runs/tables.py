@@ -17,13 +17,13 @@ from pathlib import Path
 
 from samp.runs.protocol import BENCHMARK, BENCHMARK_REF, BLOCKS, PROTOCOL, eval_key, interval_keys, label
 from samp.runs.registry import Run, check_key, pooled, varying_keys
-from samp.runs.tracking import tracked_at
+from samp.tracking import tracked_at
 
 __all__ = ["DASH", "compare_table", "default_metrics", "fmt", "group_table", "list_table", "markdown", "percent",
            "show_text", "stores", "to_csv", "write_table"]
 
 DASH = "-"  # a value that is missing (no such run, or the run has no such metric)
-TRACKED = "tracked"  # the MLflow run id of a run (samp.runs.tracking), a column of `ls`
+TRACKED = "tracked"  # the MLflow run id of a run (samp.tracking), a column of `ls`
 LIST_COLUMNS = ("run", "status", "experiment", "dataset_id", PROTOCOL, "seed", "steps", "start", TRACKED)
 PERCENT = " [%]"  # marks a row or column of rates shown in percent with their intervals
 

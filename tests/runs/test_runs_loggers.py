@@ -95,7 +95,7 @@ def test_tensorboard_logger_writes_under_the_run_folder(tmp_path):
     ("off", "http://mlflow.example:5000", None),
 ])
 def test_the_tracking_uri(tmp_path, monkeypatch, configured, env, want):
-    from samp.runs.tracking import TRACKING_ENV, resolve_uri
+    from samp.tracking import TRACKING_ENV, resolve_uri
 
     if env is None:
         monkeypatch.delenv(TRACKING_ENV, raising=False)

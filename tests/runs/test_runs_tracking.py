@@ -272,7 +272,7 @@ def test_ls_and_show_say_where_runs_are_tracked(server, quickstart, cli):
 def test_which_files_become_artifacts(server, tmp_path):
     """Checkpoints, exported networks, other loggers' folders and hidden files stay out; recordings go only
     when asked (`tracking.recording`)."""
-    from samp.runs.tracking import client, experiment_id, log_files
+    from samp.tracking import client, experiment_id, log_files
 
     _, rest = server
     for name in ("eval/metrics.md", "eval/recording.rrd", "checkpoints/last.ckpt", "robot_sdf.pt", "tensorboard/ev",

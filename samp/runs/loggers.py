@@ -73,8 +73,7 @@ class RunCSVLogger(Logger):
         from pytorch_lightning.core.saving import save_hparams_to_yaml
 
         self._dir.mkdir(parents=True, exist_ok=True)
-        save_hparams_to_yaml(self._dir / HPARAMS_YAML, dict(vars(params)) if hasattr(params, "__dict__") and
-                             not isinstance(params, dict) else dict(params))
+        save_hparams_to_yaml(self._dir / HPARAMS_YAML, params if isinstance(params, dict) else vars(params))
 
     @rank_zero_only
     def log_metrics(self, metrics: dict, step: int | None = None) -> None:
@@ -93,8 +92,10 @@ class RunCSVLogger(Logger):
         new = sorted(set().union(*self._rows) - set(self._keys))
         if new:
             self._keys = sorted([*self._keys, *new])
-            if self.path.is_file():  # a wider header: the rows on disk are written again under it
-                self._write("w", self._read())
+            if self.path.is_file():  # a wider header: the rows on disk are written again under it, then swapped in
+                tmp = self.path.with_name(f".{METRICS_CSV}.tmp")
+                self._write("w", self._read(), tmp)
+                tmp.replace(self.path)
         self._write("a" if self.path.is_file() else "w", self._rows)
         self._rows = []
 
@@ -112,9 +113,9 @@ class RunCSVLogger(Logger):
         with open(self.path, newline="") as f:
             return list(csv.DictReader(f))
 
-    def _write(self, mode: str, rows: list[dict]) -> None:
+    def _write(self, mode: str, rows: list[dict], path: Path | None = None) -> None:
         self._dir.mkdir(parents=True, exist_ok=True)
-        with open(self.path, mode, newline="") as f:
+        with open(path or self.path, mode, newline="") as f:
             writer = csv.DictWriter(f, fieldnames=self._keys)
             if mode == "w":
                 writer.writeheader()

@@ -214,3 +214,7 @@ def test_the_run_is_tracked_in_the_runs_folder(demo):
     assert (tmp / "runs" / "mlflow-artifacts" / "quickstart").is_dir() and (tmp / "runs" / "mlflow.db").is_file()
     (sdf_run,) = (tmp / "runs" / "robot_sdf_panda_quick").iterdir()
     assert json.loads((sdf_run / "run.json").read_text())["loggers"]["mlflow"]["tracking_uri"] == uri
+    from mlflow.tracking import MlflowClient
+
+    tags = MlflowClient(uri).get_run(record["loggers"]["mlflow"]["run_id"]).data.tags  # the benchmark's id as a tag
+    assert tags["samp.benchmark_id"] == json.loads((run / "eval" / "metrics.json").read_text())["benchmark"], tags

@@ -4,11 +4,12 @@ nothing of samp, so every layer may use it."""
 
 from __future__ import annotations
 
-__all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "BATCH_START", "BATCH_STEP", "BATCH_STEP_CLEAN", "BATCH_TRAJ", "BEST_CKPT",
-           "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE", "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX",
-           "LAST_CHECKPOINT", "METRICS_CSV", "N_E_MAX", "METRICS_JSON", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL",
-           "RECONSTRUCTION_RRD", "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRAIN_LOG", "TRAIN_PREFIX",
-           "VAL_PREFIX"]
+__all__ = ["ALL_SPLITS", "BATCH_GOAL", "BATCH_NEXT", "BATCH_Q", "BATCH_SCENE", "BATCH_START", "BATCH_STEP",
+           "BATCH_STEP_CLEAN", "BATCH_TRAJ", "BEST_CKPT", "CHECKPOINTS_DIR", "CHECKPOINT_PREFERENCE",
+           "CHECKPOINT_RECORD", "CONFIG_DIR", "EVAL_DIR", "EVAL_PREFIX", "HPARAMS_YAML", "LAST_CHECKPOINT",
+           "METRICS_CSV", "METRICS_JSON", "N_E_MAX", "METRICS_MD", "PLOTS_DIR", "PROBLEMS_JSONL", "RECONSTRUCTION_RRD",
+           "RECORDING_RRD", "RUN_JSON", "SPLITS", "SPLIT_ALIASES", "SUMMARY_PNG", "TRACKING_ARTIFACTS_DIR",
+           "TRACKING_DB", "TRAIN_LOG", "TRAIN_PREFIX", "VAL_PREFIX"]
 
 # The most anchors per axis of a scene grid: 256^3 float32 distances are 64 MiB per grid (the paper's largest
 # n_e is 160). Checked wherever n_e is given (grids, training and evaluation configs), before anything is
@@ -18,6 +19,7 @@ N_E_MAX = 256
 # ---------------------------------------------------------------- a run folder (docs/design.md section 6)
 RUN_JSON = "run.json"
 METRICS_CSV = "metrics.csv"
+HPARAMS_YAML = "hparams.yaml"  # the model's hyperparameters, beside metrics.csv (the CSV logger)
 CONFIG_DIR = ".hydra"
 CHECKPOINTS_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.ckpt"
@@ -32,6 +34,9 @@ RECONSTRUCTION_RRD = "reconstruction.rrd"  # grid_source=reconstructed: clouds, 
 PLOTS_DIR = "plots"
 SUMMARY_PNG = "summary.png"  # losses and rates of a run, written after training
 TRAIN_LOG = "train.log"  # everything the run printed (samp.runs.console.RunLog)
+# ---------------------------------------------------------------- the runs folder's local MLflow store (samp.tracking)
+TRACKING_DB = "mlflow.db"
+TRACKING_ARTIFACTS_DIR = "mlflow-artifacts"  # its artifacts: copies of run files, never scanned as runs
 
 # ---------------------------------------------------------------- checkpoints
 CHECKPOINT_RECORD = "samp"  # {"kind": ..., ...}: what a policy checkpoint holds (samp.policy.registry)

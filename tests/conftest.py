@@ -5,6 +5,11 @@ torch makes its first MKL call, and inherited by every process a test starts): t
 generated dataset's digests) or compare two code paths bit for bit (the robot SDF's needed points against the
 full query, which MKL computes with different kernels for different shapes on some CPUs) then hold on every
 x86 CPU, not only on the one they were written on.
+
+Tracking in MLflow is off for the suite (`SAMP_TRACKING_URI=off`, inherited by every process a test starts):
+importing MLflow and creating a store cost seconds in each training process, and a developer's own
+`SAMP_TRACKING_URI` must not receive test runs. The tests of tracking turn it back on for their processes
+(tests/runs/test_runs_tracking.py, test_runs_resume.py, test_runs_submitit.py, tests/e2e).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import torch
 from samp.data.lifecycle import reproducible_mkl
 
 reproducible_mkl()  # importing torch makes no MKL call; this is before the first one (module docstring)
+os.environ["SAMP_TRACKING_URI"] = "off"  # (module docstring)
 
 ROBOTS = ["panda", "iiwa", "xarm6"]
 

@@ -7,7 +7,9 @@ training scenes, never trained on), and the standing benchmark of unseen scenes,
 straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (without a run:
 `<runs folder>/eval/PLANNER_DATASET@ID/`; or `out=DIR`): metrics.json, metrics.md, problems.jsonl and
 recording.rrd. An earlier evaluation there is kept and the new one goes beside it (`eval-2/`, ...), unless
-`overwrite=true`. Settings: conf/eval.yaml (schema: samp/eval/config.py).
+`overwrite=true`. The evaluation is also logged to MLflow (`samp.tracking`): a run's into its own MLflow
+run, as a section named after the folder (`eval-2/...`), unless `SAMP_TRACKING_URI=off`. Settings:
+conf/eval.yaml (schema: samp/eval/config.py).
 """
 
 from __future__ import annotations
@@ -167,7 +169,8 @@ def _evaluate(overrides: list[str]) -> Path:
     # Heavy imports only once the config is known to be good.
     from samp.eval.benchmark import open_benchmark
     from samp.eval.loading import check_robot, find_checkpoint, read_run
-    from samp.eval.report import evaluate_sections, protocol_sections
+    from samp.eval.report import evaluate_sections, flat_report, protocol_sections
+    from samp.tracking import track_evaluation
 
     if (cfg.run is None) == (cfg.planner is None):
         raise ValueError("say what to evaluate: run=RUN_DIR (a trained policy) or planner=expert|straight dataset=REF, "
@@ -193,9 +196,15 @@ def _evaluate(overrides: list[str]) -> Path:
                                  else None, trained=trained)
     label = f"{ds.name}@{ds.id}" if ds is not None else f"{bench.name}@{bench.id}"
     out = _out_dir(cfg, run, label)
-    evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
-                      dataset=None if ds is None else f"{ds.name}@{ds.id}",
-                      benchmark=None if bench is None else f"{bench.name}@{bench.id}", provenance=provenance)
+    report = evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
+                               dataset=None if ds is None else f"{ds.name}@{ds.id}",
+                               benchmark=None if bench is None else f"{bench.name}@{bench.id}",
+                               provenance=provenance)
+    # into the run's own MLflow run, as a section named after `out` (samp.tracking)
+    from samp.data.registry import datasets_root
+
+    track_evaluation(out, report, flat_report(report, report["planner"]), run_path=run.path if run else None,
+                     datasets_root=Path(cfg.root) if cfg.root else datasets_root())
     return out
 
 

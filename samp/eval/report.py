@@ -25,7 +25,8 @@ from pathlib import Path
 
 from samp.cli import paste
 
-__all__ = ["PROTOCOL", "Section", "dataset_sections", "evaluate_sections", "grid_source", "protocol_sections"]
+__all__ = ["PROTOCOL", "Section", "dataset_sections", "evaluate_sections", "flat_report", "grid_source",
+           "protocol_sections"]
 
 PROTOCOL = 2  # metrics.json without a "protocol" key: version 1 (training demonstrations as problems)
 PROGRESS_S = 10.0  # seconds between progress lines of an evaluation when stderr is not a terminal
@@ -182,6 +183,20 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
         report.update(provenance.record())
     heading = provenance.heading() if provenance is not None else ""
     return _write(out, cfg, report, planner, problems, records, results_all, sections, heading)
+
+
+def flat_report(report: dict, name: str) -> dict[str, float]:
+    """The report's metrics as run.json and the trackers keep them: `eval/<planner>/<group>/<key>` for the
+    metrics the registry flattens into run.json, each rate with its interval (`<rate>_ci_low`, `<rate>_ci_high`);
+    `name` stands for the report's own planner."""
+    from samp.eval.metrics import flat_metrics, metric_keys
+    from samp.names import EVAL_PREFIX
+
+    rates = set(metric_keys(rate=True))
+    keys = [k for key in flat_metrics() for k in ([key, f"{key}_ci_low", f"{key}_ci_high"] if key in rates else [key])]
+    return {f"{EVAL_PREFIX}{planner}/{group}/{key}": float(m[key])
+            for planner, block in ((name, "metrics"), ("expert", "expert"), ("straight", "straight"))
+            for group, m in (report.get(block) or {}).items() for key in keys if m.get(key) is not None}
 
 
 def _merged(results_all: list[dict], name: str) -> dict | None:

@@ -2,8 +2,9 @@
 the paper's tables.
 
 usage: python -m samp.runs COMMAND [key=value ...]
-  ls [KEY=VALUE ...] [root=DIR] [keys=K,K]         runs under runs/ (or root), filtered by any key
-  show RUN                                         one run's record: status, lineage, protocol, metrics, files
+  ls [KEY=VALUE ...] [root=DIR] [keys=K,K]         runs under runs/ (or root), filtered by any key, with where
+                                                   each is tracked (MLflow run id, store URI)
+  show RUN                                         one run's record: status, lineage, protocol, tracking, metrics, files
   compare RUN RUN ... [metrics=M,M]                side by side: lineage, differing config, metrics
   table DIR by=KEY [metrics=M,M] [out=PREFIX]      one row per value of KEY (mean ± std [interval]), .md and .csv
   plot DIR by=KEY [metrics=M,M] [kind=curves|bars] [x=epoch|step] [out=FILE.png]
@@ -87,7 +88,7 @@ def _by(command: str, opts: dict) -> str:
 def _ls(args: list[str]) -> None:
     from samp.runs.protocol import label
     from samp.runs.registry import check_key, matches, scan_runs
-    from samp.runs.tables import list_table, markdown
+    from samp.runs.tables import list_table, markdown, stores
 
     _, opts, filters = _args("ls", args, ("root", "keys"), lists=("keys",), filters=True)
     found, damaged = scan_runs(_root(opts.get("root")))
@@ -102,6 +103,8 @@ def _ls(args: list[str]) -> None:
         print(f"DAMAGED {why}")  # `why` names the file
     for protocol in sorted({r.protocol for r in runs if r.protocol is not None}, reverse=True):
         print(f"protocol {label(protocol)}")
+    for uri, count in stores(runs).items():  # the `tracked` column's run ids are runs of these stores
+        print(f"tracked in {uri}: {count} run(s)")
 
 
 def _show(args: list[str]) -> None:

@@ -7,21 +7,12 @@ nested config into dotted keys for tables and filters.
 
 from __future__ import annotations
 
+from samp.tracking import flatten  # (defined there, where trackers flatten configs into params)
+
 __all__ = ["LINEAGE_KEYS", "flatten", "lineage_tags", "merge_overrides", "override_key"]
 
 # run.json fields that say where a result came from; each becomes a tracker tag (`samp.<key>`).
 LINEAGE_KEYS = ("experiment", "seed", "dataset_id", "robot_sdf_artifact_id", "host", "run_dir")
-
-
-def flatten(node, prefix: str = "") -> dict:
-    """{"a": {"b": 1}, "c": [2]} -> {"a.b": 1, "c": [2]}: nested dicts become dotted keys; lists stay."""
-    if not isinstance(node, dict):
-        return {prefix: node} if prefix else {}
-    out = {}
-    for key, value in node.items():
-        path = f"{prefix}.{key}" if prefix else str(key)
-        out.update(flatten(value, path) if isinstance(value, dict) else {path: value})
-    return out
 
 
 def lineage_tags(record: dict) -> dict[str, str]:

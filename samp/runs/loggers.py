@@ -1,54 +1,125 @@
-"""Loggers that know their run folder: the CSV log every run keeps, and the opt-in trackers.
+"""Loggers that know their run folder: the CSV log every run keeps, and the optional ones.
 
-- `RunCSVLogger`: `metrics.csv` in the run folder. Lightning's CSVLogger deletes an existing metrics.csv
-  when it starts; this one appends to it, so a resumed run (`samp.train resume=RUN_DIR`) keeps its
-  earlier rows and goes on from the checkpoint's step (`RunFolder.trim_metrics` has set aside rows
-  logged after that checkpoint).
-- `mlflow_logger`: Lightning's MLFlowLogger on a `sqlite:///` URI (offline, no server), tagged with the
-  run's lineage; its MLflow run id is kept in run.json so a resumed run logs into the same MLflow run.
-- `wandb_logger`: Lightning's WandbLogger, offline by default, same lineage and resume behaviour.
+- `RunCSVLogger`: `metrics.csv` in the run folder, continued when a run is resumed (`samp.train
+  resume=RUN_DIR` goes on from the checkpoint's step; `RunFolder.trim_metrics` has set aside rows logged
+  after that checkpoint).
+- `tensorboard_logger`: Lightning's TensorBoardLogger, event files in `<run>/tensorboard/`.
+- `wandb_logger`: Lightning's WandbLogger, offline by default, tagged with the run's lineage; its run id is
+  kept in run.json so a resumed run logs into the same W&B run.
 
-`finish_loggers` adds what is only known after training (dataset id, robot SDF id, evaluation metrics).
+MLflow is no logger option: every run is tracked there unless tracking is off (`samp.runs.tracking`, which
+makes its logger). `finish_loggers` adds what is only known after training (dataset id, robot SDF id,
+evaluation metrics, and for MLflow the files).
 """
 
 from __future__ import annotations
 
 import csv
-import os
 from pathlib import Path
 
-from pytorch_lightning.loggers import CSVLogger, MLFlowLogger, WandbLogger
-from pytorch_lightning.loggers.csv_logs import ExperimentWriter
+from pytorch_lightning.loggers import Logger, MLFlowLogger, WandbLogger
+from pytorch_lightning.utilities import rank_zero_only
 
+from samp.names import HPARAMS_YAML, METRICS_CSV
 from samp.runs.distributed import is_rank_zero
-from samp.runs.folder import METRICS_CSV, RunFolder
-from samp.runs.lineage import flatten, lineage_tags
+from samp.runs.folder import RunFolder
+from samp.runs.lineage import lineage_tags
 
-__all__ = ["RunCSVLogger", "finish_loggers", "mlflow_logger", "wandb_logger"]
-
-
-class _ContinuingWriter(ExperimentWriter):
-    """Lightning's CSV writer, except that an existing metrics.csv is continued, not deleted."""
-
-    def _check_log_dir_exists(self) -> None:
-        path = Path(self.metrics_file_path)
-        if path.is_file():  # its header becomes the known columns; new columns rewrite the header
-            with open(path, newline="") as f:
-                self.metrics_keys = sorted(csv.DictReader(f).fieldnames or [])
+__all__ = ["RunCSVLogger", "finish_loggers", "tensorboard_logger", "wandb_logger"]
 
 
-class RunCSVLogger(CSVLogger):
-    """`<save_dir>/metrics.csv` (and hparams.yaml), continued across resumes of the same run folder."""
+class RunCSVLogger(Logger):
+    """`<save_dir>/metrics.csv` (and hparams.yaml), continued across resumes of the same run folder.
+
+    A Logger of its own on Lightning's public API (Lightning's CSVLogger deletes an existing metrics.csv when it
+    starts). The file keeps that logger's format, which `samp.runs` reads: one row per `log_metrics` call, the
+    columns every key logged so far in sorted order with `step` among them, blank where a row has no value; a
+    new key rewrites the file under the wider header. Rows are buffered and written every
+    `flush_logs_every_n_steps` steps, on `save` and at the end."""
 
     def __init__(self, save_dir: str, flush_logs_every_n_steps: int = 100):
-        super().__init__(save_dir, name="", version="", flush_logs_every_n_steps=flush_logs_every_n_steps)
+        super().__init__()
+        self._dir = Path(save_dir)
+        self._every = int(flush_logs_every_n_steps)
+        self._rows: list[dict] = []
+        self._keys: list[str] | None = None  # the header on disk, read when first needed
 
     @property
-    def experiment(self) -> ExperimentWriter:
-        if self._experiment is None:
-            os.makedirs(self.log_dir, exist_ok=True)
-            self._experiment = _ContinuingWriter(log_dir=self.log_dir)
-        return self._experiment
+    def name(self) -> str:
+        return ""
+
+    @property
+    def version(self) -> str:
+        return ""
+
+    @property
+    def save_dir(self) -> str:
+        return str(self._dir)
+
+    @property
+    def log_dir(self) -> str:
+        return str(self._dir)
+
+    @property
+    def path(self) -> Path:
+        return self._dir / METRICS_CSV
+
+    def has_rows(self) -> bool:
+        """Whether any row was logged, written or still buffered."""
+        return bool(self._rows) or self.path.is_file()
+
+    @rank_zero_only
+    def log_hyperparams(self, params, *args, **kwargs) -> None:
+        from pytorch_lightning.core.saving import save_hparams_to_yaml
+
+        self._dir.mkdir(parents=True, exist_ok=True)
+        save_hparams_to_yaml(self._dir / HPARAMS_YAML, params if isinstance(params, dict) else vars(params))
+
+    @rank_zero_only
+    def log_metrics(self, metrics: dict, step: int | None = None) -> None:
+        row = {k: v.item() if hasattr(v, "item") else v for k, v in metrics.items()}
+        row["step"] = len(self._rows) if step is None else int(step)
+        self._rows.append(row)
+        if (row["step"] + 1) % self._every == 0:
+            self.save()
+
+    @rank_zero_only
+    def save(self) -> None:
+        if not self._rows:
+            return
+        if self._keys is None:
+            self._keys = self._header()
+        new = sorted(set().union(*self._rows) - set(self._keys))
+        if new:
+            self._keys = sorted([*self._keys, *new])
+            if self.path.is_file():  # a wider header: the rows on disk are written again under it, then swapped in
+                tmp = self.path.with_name(f".{METRICS_CSV}.tmp")
+                self._write("w", self._read(), tmp)
+                tmp.replace(self.path)
+        self._write("a" if self.path.is_file() else "w", self._rows)
+        self._rows = []
+
+    @rank_zero_only
+    def finalize(self, status: str) -> None:
+        self.save()
+
+    def _header(self) -> list[str]:
+        if not self.path.is_file():
+            return []
+        with open(self.path, newline="") as f:
+            return sorted(csv.DictReader(f).fieldnames or [])
+
+    def _read(self) -> list[dict]:
+        with open(self.path, newline="") as f:
+            return list(csv.DictReader(f))
+
+    def _write(self, mode: str, rows: list[dict], path: Path | None = None) -> None:
+        self._dir.mkdir(parents=True, exist_ok=True)
+        with open(path or self.path, mode, newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=self._keys)
+            if mode == "w":
+                writer.writeheader()
+            writer.writerows(rows)
 
 
 def _missing(package: str, extra: str) -> ModuleNotFoundError:
@@ -65,27 +136,16 @@ def _remember(folder: RunFolder, tracker: str, **info) -> None:
         folder.update(loggers={**(folder.read().get("loggers") or {}), tracker: info})
 
 
-def mlflow_logger(run_dir: str, experiment_name: str, tracking_uri: str, artifact_location: str | None = None):
-    """A Lightning MLFlowLogger for the run in `run_dir`: tags from its run.json lineage, and the same
-    MLflow run again when the run folder is resumed. `tracking_uri`: `sqlite:///PATH` (MLflow 3 refuses
-    plain folders); browse with `mlflow ui --backend-store-uri URI` (needs the full `mlflow` extra)."""
+def tensorboard_logger(run_dir: str, name: str = "tensorboard"):
+    """Lightning's TensorBoardLogger writing its event files into `<run_dir>/<name>/` (no version folders:
+    a resumed run appends to the same folder); `tensorboard --logdir RUN_DIR/tensorboard` shows them."""
     import importlib.util
 
-    if importlib.util.find_spec("mlflow") is None:
-        raise _missing("mlflow", "mlflow")
-    folder = RunFolder(run_dir)
-    if tracking_uri.startswith("sqlite:///"):
-        Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
-    previous = _previous_id(folder, "mlflow")
-    record = folder.read()
-    logger = MLFlowLogger(experiment_name=experiment_name, run_name=f"{folder.path.parent.name}/{folder.path.name}",
-                          tracking_uri=tracking_uri, tags=lineage_tags(record),
-                          artifact_location=artifact_location, run_id=previous)
-    if is_rank_zero():
-        if previous is None:  # MLflow params never change: a resumed run keeps those of its first start
-            logger.log_hyperparams(flatten(record.get("config") or {}))
-        _remember(folder, "mlflow", run_id=logger.run_id, tracking_uri=tracking_uri, experiment_name=experiment_name)
-    return logger
+    if importlib.util.find_spec("tensorboard") is None and importlib.util.find_spec("tensorboardX") is None:
+        raise _missing("tensorboard", "tensorboard")
+    from pytorch_lightning.loggers import TensorBoardLogger
+
+    return TensorBoardLogger(save_dir=run_dir, name=name, version="", default_hp_metric=False)
 
 
 def wandb_logger(run_dir: str, project: str, offline: bool = True, entity: str | None = None):
@@ -110,13 +170,15 @@ def _numeric(metrics: dict) -> dict[str, float]:
 
 def finish_loggers(loggers: list, record: dict, metrics: dict, step: int, final: dict | None = None) -> None:
     """After training: log `metrics` not logged yet (the final evaluation) at `step`, and the lineage now
-    complete (dataset and robot SDF ids) as tags, to every logger. `final` (the last values of the run)
-    goes to a CSV log that would otherwise stay empty: a run shorter than `log_every_n_steps`, without
-    validation or evaluation, still gets its metrics.csv."""
+    complete (dataset and robot SDF ids) as tags, to every logger; a tracked run's files go to MLflow
+    (`samp.runs.tracking.finish_training`). `final` (the last values of the run) goes to a CSV log that would
+    otherwise stay empty: a run shorter than `log_every_n_steps`, without validation or evaluation, still
+    gets its metrics.csv."""
+    from samp.runs.tracking import finish_training
+
     numeric, tags = _numeric(metrics), lineage_tags(record)
     for logger in loggers:
-        if isinstance(logger, CSVLogger) and not numeric and final and not logger.experiment.metrics \
-                and not (Path(logger.log_dir) / METRICS_CSV).is_file():
+        if isinstance(logger, RunCSVLogger) and not numeric and final and not logger.has_rows():
             logger.log_metrics({"epoch": float(record.get("epochs") or 0), **_numeric(final)}, step=step)
         if numeric:
             logger.log_metrics(numeric, step=step)
@@ -124,6 +186,7 @@ def finish_loggers(loggers: list, record: dict, metrics: dict, step: int, final:
         if isinstance(logger, MLFlowLogger):
             for key, value in tags.items():
                 logger.experiment.set_tag(logger.run_id, key, value)
+            finish_training(logger, record, Path(record["run_dir"]))
         elif isinstance(logger, WandbLogger):
             logger.experiment.config.update(tags, allow_val_change=True)
         logger.finalize("success")

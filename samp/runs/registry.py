@@ -18,6 +18,7 @@ from functools import cached_property
 from pathlib import Path
 
 from samp.provenance import process_gone
+from samp.names import TRACKING_ARTIFACTS_DIR
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import flatten
 from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rate, pooled_interval, protocol_of
@@ -140,9 +141,11 @@ def scan_runs(root: Path | str) -> tuple[list[Run], list[tuple[Path, str]]]:
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no such folder: {root}")
-    # a hidden folder is not a published run: `.pull-*` is a pull in progress (samp/runs/sharing.py)
+    # a hidden folder is not a published run (`.pull-*` is a pull in progress, samp/runs/sharing.py), and a local
+    # MLflow store's artifacts hold copies of run.json that are not runs of their own
     paths = [root] if (root / RUN_JSON).is_file() else sorted(
-        p.parent for p in root.rglob(RUN_JSON) if not any(s.startswith(".") for s in p.relative_to(root).parts[:-1]))
+        p.parent for p in root.rglob(RUN_JSON)
+        if not any(s.startswith(".") or s == TRACKING_ARTIFACTS_DIR for s in p.relative_to(root).parts[:-1]))
     runs, damaged = [], []
     for p in paths:
         try:

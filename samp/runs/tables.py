@@ -17,12 +17,14 @@ from pathlib import Path
 
 from samp.runs.protocol import BENCHMARK, BENCHMARK_REF, BLOCKS, PROTOCOL, eval_key, interval_keys, label
 from samp.runs.registry import Run, check_key, pooled, varying_keys
+from samp.tracking import tracked_at
 
 __all__ = ["DASH", "compare_table", "default_metrics", "fmt", "group_table", "list_table", "markdown", "percent",
-           "show_text", "to_csv", "write_table"]
+           "show_text", "stores", "to_csv", "write_table"]
 
 DASH = "-"  # a value that is missing (no such run, or the run has no such metric)
-LIST_COLUMNS = ("run", "status", "experiment", "dataset_id", PROTOCOL, "seed", "steps", "start")
+TRACKED = "tracked"  # the MLflow run id of a run (samp.tracking), a column of `ls`
+LIST_COLUMNS = ("run", "status", "experiment", "dataset_id", PROTOCOL, "seed", "steps", "start", TRACKED)
 PERCENT = " [%]"  # marks a row or column of rates shown in percent with their intervals
 
 
@@ -74,6 +76,8 @@ def _cell(run: Run, key: str) -> str:
     """`run`'s value of `key`; the protocol as `ls` abbreviates it ("2", "1 (legacy)")."""
     if key == PROTOCOL:
         return DASH if run.protocol is None else label(run.protocol, short=True)
+    if key == TRACKED:
+        return fmt((tracked_at(run.record) or (None, None))[1])
     return fmt(run.get(key))
 
 
@@ -82,6 +86,16 @@ def list_table(runs: list[Run], extra: list[str] = ()) -> tuple[list[str], list[
     `extra` keys."""
     rows = [[r.name, r.status, *(_cell(r, k) for k in LIST_COLUMNS[2:]), *(fmt(r.get(k)) for k in extra)] for r in runs]
     return list(LIST_COLUMNS) + list(extra), rows
+
+
+def stores(runs: list[Run]) -> dict[str, int]:
+    """Tracking URI -> how many of `runs` are tracked there."""
+    found: dict[str, int] = {}
+    for r in runs:
+        where = tracked_at(r.record)
+        if where:
+            found[where[0]] = found.get(where[0], 0) + 1
+    return found
 
 
 def with_intervals(runs: list[Run], metrics: list[str]) -> set[str]:
@@ -206,6 +220,8 @@ def show_text(run: Run) -> str:
              "overrides  " + " ".join(rec.get("overrides") or [])]
     if rec.get("sweep"):
         lines.append(f"sweep      {rec['sweep'].get('dir')} member {rec['sweep'].get('member')}")
+    where = tracked_at(rec)
+    lines.append(f"tracked    {where[0]} run {where[1]}" if where else "tracked    no (tracking was off)")
     if run.metrics:
         keys = _folded(sorted(run.metrics), [run])
         lines += ["", markdown(["metric", "value"], [[k + PERCENT, percent(run.get(k), run.interval(k))]

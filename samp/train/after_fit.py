@@ -19,19 +19,6 @@ from pathlib import Path
 __all__ = ["after_fit", "evaluate_policy", "export_robot_sdf"]
 
 
-def _flat(report: dict, name: str) -> dict[str, float]:
-    """`eval/<planner>/<group>/<key>` for the metrics the registry flattens into run.json, each rate with
-    its interval (`<rate>_ci_low`, `<rate>_ci_high`)."""
-    from samp.eval.metrics import flat_metrics, metric_keys
-    from samp.names import EVAL_PREFIX
-
-    rates = set(metric_keys(rate=True))
-    keys = [k for key in flat_metrics() for k in ([key, f"{key}_ci_low", f"{key}_ci_high"] if key in rates else [key])]
-    return {f"{EVAL_PREFIX}{planner}/{group}/{key}": float(m[key])
-            for planner, block in ((name, "metrics"), ("expert", "expert"), ("straight", "straight"))
-            for group, m in (report.get(block) or {}).items() for key in keys if m.get(key) is not None}
-
-
 def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     """The trained policy `system` under the evaluation protocol: the stored evaluation problems of its
     dataset's validation and training scenes (`evaluation.problems` per split) and the standing benchmark
@@ -40,7 +27,7 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     from samp.eval.benchmark import open_benchmark
     from samp.eval.binding import Provenance
     from samp.eval.config import load_eval_config
-    from samp.eval.report import evaluate_sections, protocol_sections
+    from samp.eval.report import evaluate_sections, flat_report, protocol_sections
     from samp.names import EVAL_DIR, PLOTS_DIR, SUMMARY_PNG
 
     if not evaluation.problems and not evaluation.benchmark:
@@ -71,7 +58,7 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
             print(f"plot: {path}", flush=True)
     except Exception as err:  # noqa: BLE001 - reported, not raised
         print(f"warning: the summary plot was not written ({type(err).__name__}: {err})", flush=True)
-    return _flat(report, system.kind)
+    return flat_report(report, system.kind)
 
 
 def export_robot_sdf(system, run_dir: Path, evaluation: dict | None) -> dict:

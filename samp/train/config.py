@@ -40,6 +40,7 @@ class TrainSchema:
     robot: Any = None
     build_missing: Any = None
     evaluation: Any = None
+    tracking: Any = None
     run_dir: Any = None
     resume: Any = None
     trust_checkpoint: bool = False

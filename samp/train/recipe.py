@@ -6,7 +6,8 @@ only runs the recipe. Before fitting, `prerequisites.prepare` resolves the syste
 builds what is missing when `build_missing` says so; after fitting, `after_fit.after_fit` evaluates the
 model just trained, in memory (`evaluation.problems` per split for a policy; export and Table III for a
 robot SDF). Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR` or `paths.runs_dir` moves the root)
-with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the evaluation writes.
+with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the evaluation writes; it is also a run of
+the MLflow tracking store (`samp.runs.tracking`; `tracking.uri`).
 `resume=RUN_DIR` continues a run in its own folder from its last checkpoint, with the overrides it was
 started with (new ones win) and its loggers continuing; `run_dir=DIR` puts a new run in a folder of your
 choice. `-m` / `sweep=NAME` hand the arguments to the Hydra multirun entry point (`samp.train.sweep`),
@@ -114,6 +115,7 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
     from samp.runs.distributed import is_rank_zero
     from samp.runs.folder import Terminated
     from samp.runs.loggers import finish_loggers
+    from samp.runs.tracking import training_logger
     from samp.train.after_fit import after_fit
     from samp.train.prerequisites import prepare
 
@@ -155,6 +157,8 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
             system = instantiate(cfg.system)
             callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
             loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
+            tracker = training_logger(cfg, folder) if rank_zero else None  # MLflow, unless tracking is off
+            loggers += [tracker] if tracker is not None else []
             console, progress = trainer_console(cfg.trainer)  # a progress bar on a terminal, else lines
             quiet_lightning()  # before the Trainer, which logs its tip when it is made
             trainer = instantiate(cfg.trainer, callbacks=callbacks + progress, logger=loggers or False,

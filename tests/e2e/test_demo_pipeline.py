@@ -33,7 +33,8 @@ def demo(tmp_path_factory, _isolated_cache):
     the recipe, the robot SDF it builds and its evaluations included, must go there, and nothing into the
     repository or the working folder."""
     tmp = tmp_path_factory.mktemp("demo")
-    env = {k: v for k, v in os.environ.items() if k not in ("SAMP_RUNS_DIR", "SAMP_DATASETS_DIR")}
+    # SAMP_TRACKING_URI unset too: the demo is tracked in its runs folder's local MLflow store, as by default
+    env = {k: v for k, v in os.environ.items() if k not in ("SAMP_RUNS_DIR", "SAMP_DATASETS_DIR", "SAMP_TRACKING_URI")}
     repo = Path(__file__).resolve().parents[2]
     env["PYTHONPATH"] = str(repo)
     (tmp / "work").mkdir()
@@ -201,3 +202,19 @@ def test_the_policy_run_has_a_model_card(demo):
     record = json.loads((run / "run.json").read_text())
     assert f"dataset: `{record['dataset_id']}`" in card and f"artifact `{record['robot_sdf_artifact_id']}`" in card
     assert "| samp | benchmark |" in card, "the benchmark results are in the card"
+
+
+def test_the_run_is_tracked_in_the_runs_folder(demo):
+    """Tracked by default in `<runs>/mlflow.db`, its artifacts beside it (tests/runs/test_runs_tracking.py checks
+    what the store holds); the robot SDF built for it is a tracked run too."""
+    tmp, run, out = demo
+    record = json.loads((run / "run.json").read_text())
+    uri = f"sqlite:///{(tmp / 'runs').resolve()}/mlflow.db"
+    assert record["loggers"]["mlflow"]["tracking_uri"] == uri and f"tracked: {uri} run " in out
+    assert (tmp / "runs" / "mlflow-artifacts" / "quickstart").is_dir() and (tmp / "runs" / "mlflow.db").is_file()
+    (sdf_run,) = (tmp / "runs" / "robot_sdf_panda_quick").iterdir()
+    assert json.loads((sdf_run / "run.json").read_text())["loggers"]["mlflow"]["tracking_uri"] == uri
+    from mlflow.tracking import MlflowClient
+
+    tags = MlflowClient(uri).get_run(record["loggers"]["mlflow"]["run_id"]).data.tags  # the benchmark's id as a tag
+    assert tags["samp.benchmark_id"] == json.loads((run / "eval" / "metrics.json").read_text())["benchmark"], tags

@@ -24,15 +24,19 @@ def tiny_sdf() -> list[str]:
 
 @pytest.fixture(scope="session")
 def cli(tmp_path_factory, _isolated_cache):
-    """cli(module, args, runs_dir, timeout=300, popen=False, prelude=None): `python -m MODULE ARGS` with its runs
-    in `runs_dir` and one datasets folder for the whole session (the tiny SDF samples are made once);
-    `prelude`: Python code run in that process first (e.g. `STOP_AT_FIRST_CHECKPOINT`)."""
+    """cli(module, args, runs_dir, timeout=300, popen=False, prelude=None, env=None): `python -m MODULE ARGS` with
+    its runs in `runs_dir` and one datasets folder for the whole session (the tiny SDF samples are made once);
+    `prelude`: Python code run in that process first (e.g. `STOP_AT_FIRST_CHECKPOINT`); `env`: more
+    environment variables (a value None removes one: `env={"SAMP_TRACKING_URI": None}` tracks into the runs
+    folder's local store, which the suite otherwise turns off)."""
     datasets = tmp_path_factory.mktemp("runs_datasets")
 
     def run(module: str, args: list[str], runs_dir: Path, timeout: int = 300, popen: bool = False,
-            prelude: str | None = None):
-        env = {**os.environ, "SAMP_RUNS_DIR": str(runs_dir), "SAMP_DATASETS_DIR": str(datasets),
-               "RERUN_ANALYTICS": "0", "OMP_NUM_THREADS": "1"}
+            prelude: str | None = None, env: dict | None = None):
+        extra = env or {}
+        env = {**{k: v for k, v in os.environ.items() if k not in extra}, "SAMP_RUNS_DIR": str(runs_dir),
+               "SAMP_DATASETS_DIR": str(datasets), "RERUN_ANALYTICS": "0", "OMP_NUM_THREADS": "1",
+               **{k: v for k, v in extra.items() if v is not None}}
         cmd = [sys.executable, "-m", module, *args]
         if prelude is not None:
             code = f"{prelude}\nimport runpy, sys\nsys.argv = [{module!r}, *sys.argv[1:]]\n" \

@@ -1,6 +1,6 @@
 """Run records without training: the git lineage of a real repository (clean, then dirty), metrics.csv
 trimmed to a checkpoint, the paper's tables from run folders with known evaluations, and the configs of
-the logger, trainer and sweep groups."""
+the trainer and sweep groups (the logger group: test_runs_loggers.py)."""
 
 from __future__ import annotations
 
@@ -97,18 +97,6 @@ def test_paper_tables_fill_rows_from_runs_and_dash_the_rest(tmp_path, monkeypatc
     assert "| 40 | - | - | - | - | - | - |" in two
     assert (tmp_path / "tables" / "table_2.csv").read_text().splitlines()[3].startswith(
         "100 (protocol 1: train / held-out),270,0.0015,82 / 75,88 / 83,10 / 13")
-
-
-@pytest.mark.parametrize("overrides, target", [
-    (["logger=csv"], {"csv": "samp.runs.loggers.RunCSVLogger"}),
-    (["logger=mlflow"], {"csv": "samp.runs.loggers.RunCSVLogger", "mlflow": "samp.runs.loggers.mlflow_logger"}),
-    (["logger=wandb"], {"csv": "samp.runs.loggers.RunCSVLogger", "wandb": "samp.runs.loggers.wandb_logger"}),
-])
-def test_logger_options_compose(overrides, target):
-    from samp.train import compose_train_config
-
-    cfg = compose_train_config(["+experiment=robot_sdf_panda", *overrides])
-    assert {k: v["_target_"] for k, v in cfg.logger.items()} == target
 
 
 def test_ddp_trainer_and_sweep_configs_compose():

@@ -35,7 +35,8 @@ def sweep(tmp_path_factory, cli):
         proc = cli(module, args, runs, timeout=900)
         assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     folder = runs / "sweeps" / "submitit"
-    proc = cli("samp.train", [*SWEEP, f"hydra.sweep.dir={folder}"], runs, timeout=1500)
+    # tracked into the local store (the suite turns tracking off): members in parallel claim one parent run
+    proc = cli("samp.train", [*SWEEP, f"hydra.sweep.dir={folder}"], runs, timeout=1500, env={"SAMP_TRACKING_URI": None})
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     return runs, folder, proc
 
@@ -73,6 +74,23 @@ def test_members_complete_as_submitit_jobs(sweep):
     for name in (".submitit", "multirun", "outputs"):  # submitit's and Hydra's default folders
         assert not (REPO / name).exists(), f"{name} written into the repository"
     assert list(runs.rglob(".submitit")) == [folder / ".submitit"]
+
+
+@pytest.mark.slow
+def test_members_in_parallel_processes_share_one_parent_run(sweep):
+    """Each member, in its own process, finds or makes the sweep's MLflow run: one parent is left (a member
+    that lost the claim deleted the one it made), and both members are its children."""
+    from mlflow.tracking import MlflowClient
+
+    runs, folder, _ = sweep
+    tracked = [json.loads((folder / name / "run.json").read_text())["loggers"]["mlflow"] for name in MEMBERS]
+    assert {t["tracking_uri"] for t in tracked} == {f"sqlite:///{runs.resolve()}/mlflow.db"}, tracked
+    client = MlflowClient(tracked[0]["tracking_uri"])
+    experiment = client.get_experiment_by_name("sweeps/submitit")
+    active = {r.info.run_id: r for r in client.search_runs([experiment.experiment_id])}  # deleted runs left out
+    (parent,) = [r for r in active.values() if r.data.tags.get("samp.kind") == "sweep"]
+    assert sorted(active) == sorted([parent.info.run_id, *(t["run_id"] for t in tracked)]), sorted(active)
+    assert {active[t["run_id"]].data.tags["mlflow.parentRunId"] for t in tracked} == {parent.info.run_id}
 
 
 @pytest.mark.slow

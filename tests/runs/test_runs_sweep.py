@@ -4,6 +4,7 @@ over it: the table's rows against run.json, skipping completed members, plots, a
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import pytest
@@ -33,6 +34,14 @@ def test_members_run_in_folders_named_by_their_override(sweep):
         assert record["status"] == "completed" and record["seed"] == seed and record["steps"] == 40, record["status"]
         assert record["sweep"]["member"] == name and record["run_dir"] == str(folder / name)
         assert (folder / name / "checkpoints" / "last.ckpt").is_file() and (folder / name / "metrics.csv").is_file()
+        assert "mlflow" not in (record.get("loggers") or {}), "tracked with SAMP_TRACKING_URI=off"
+
+
+def test_tracking_off_leaves_no_store(sweep):
+    """The suite runs with SAMP_TRACKING_URI=off (tests/conftest.py): no store, no sweep run file."""
+    runs, folder, _ = sweep
+    assert os.environ["SAMP_TRACKING_URI"] == "off"
+    assert not list(runs.glob("mlflow*")) and not list(folder.glob(".mlflow-sweep-*")), sorted(runs.iterdir())
 
 
 def test_table_prints_both_rows_with_their_metrics(sweep, cli):

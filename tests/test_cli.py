@@ -56,7 +56,7 @@ def test_h_help_and_bad_commands_in_process(module, capsys):
     ("samp.runs", ["table DIR by=KEY", "metrics=M,M", "kind=curves|bars", "paper-tables [root=DIR] [out=DIR]"]),
     ("samp.robot", ["show robot=NAME", "robot=panda", "iiwa", "configs=4"]),
     ("samp.scene", ["show scene=NAME", "scene=tabletop", "shelf", "n_e=64"]),
-    ("samp.eval", ["run=RUN_DIR", "planner=expert", "splits=", "benchmark=", "problems=100"]),
+    ("samp.eval", ["[run=]RUN_DIR", "planner=expert", "splits=", "benchmark=", "problems=100"]),
 ])
 def test_each_help_lists_its_commands_and_options(module, texts, capsys):
     assert _main(module)(["--help"]) == 0

@@ -30,6 +30,8 @@ def _checkpoint(path, dataset_id: str, robots, small_robot_sdf, seed: int = 0):
     panda = robots["panda"]
     torch.manual_seed(seed)
     system = PolicySystem(robot="panda", robot_sdf_payload=small_robot_sdf(panda), model=SMALL_NET)
+    with torch.no_grad():  # the network's initialisation may not follow torch's seed: make the weights differ
+        next(system.parameters()).add_(float(seed))
     system.bind(DatasetBinding("panda", panda.asset_hash, dataset_id, 12, DEFAULT_BOUNDS))
     ckpt = {"state_dict": system.state_dict(), "hyper_parameters": dict(system.hparams)}
     system.on_save_checkpoint(ckpt)

@@ -2,11 +2,12 @@
 
 Configs: samp's own (`conf/` in a clone, `samp/_conf/` in an installed wheel; `SAMP_CONF_DIR` replaces
 them), with the folders of `SAMP_CONFIG_PATH` (`dir1:dir2`, the user's own `robot/`, `scene/`, `dataset/`,
-`experiment/` ...) in front: `conf_dir()` is then a merged view of all of them (docs/design.md section 8).
+`experiment/` ...) in front: `conf_dir()` is then a merged view of all of them (docs/design.md section 2).
 
-Output: runs, datasets and the `SAMP_HOME` project folder default to the clone when samp runs from one,
-else to the current folder (never to site-packages); `SAMP_RUNS_DIR`, `SAMP_DATASETS_DIR` and
-`SAMP_CACHE_DIR` (default `$XDG_CACHE_HOME/samp`, i.e. `~/.cache/samp`) override each.
+Output: runs and datasets go under the project folder (`project_dir`: `$SAMP_HOME`, else the clone when
+samp runs from one, else the current folder; never site-packages) unless `SAMP_RUNS_DIR` and
+`SAMP_DATASETS_DIR` say otherwise; the cache is `$SAMP_CACHE_DIR`, else `$XDG_CACHE_HOME/samp`, i.e.
+`~/.cache/samp`.
 """
 
 from __future__ import annotations

@@ -121,6 +121,9 @@ def test_bad_sources_are_refused_clearly(tmp_path, scene_file):
              scene=np.array([scene_file]))
     with pytest.raises(ValueError, match="pickled.npz"):
         import_dataset([tmp_path / "pickled.npz"], _config("x"), tmp_path / "d", progress=False)
+    (tmp_path / "broken.npz").write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(ValueError, match="broken.npz is not a readable .npz"):
+        import_dataset([tmp_path / "broken.npz"], _config("x"), tmp_path / "d", progress=False)
     assert not any((tmp_path / "d").rglob("manifest.json")), "a refused import must publish nothing"
 
 

@@ -202,7 +202,8 @@ def _scene_record(ds: Dataset, i: int) -> tuple[SceneRecord, dict]:
                          eval_trajectories=np.stack(solutions) if solutions else np.zeros((0, 0, n)),
                          eval_episodes=records, has_eval_topics=ds.has_eval_problems)
     if record.format_version >= TIMED_FORMAT:  # what the file carries for viewers, from the robot
-        from samp.data.generation import _robot, link_poses
+        from samp.data.generation import _robot
+        from samp.data.mcap_io import link_poses
 
         robot = _robot(ds.manifest["robot"]["name"])
         record.poses, record.ee_link, record.link_meshes = (lambda q: link_poses(robot, q)), robot.ee_link, robot.link_meshes

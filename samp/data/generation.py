@@ -37,11 +37,12 @@ import numpy as np
 
 from samp.cli import paste
 from samp.data.lifecycle import die_with_parent, drain, end_workers, exit_without_teardown, reproducible_mkl
+from samp.data.mcap_io import link_poses, stacked
 from samp.data.merging import (EVAL_PREFIX, MERGING, MergeLockTimeout, build_manifest, link_or_copy, merge_lock,
                                 move_aside, remove_trash)
 from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
-from samp.data.workfolder import SIDECAR, clear_stale, generation_lock, removed_on_error, unfinished, unique_tmp
+from samp.data.workfolder import SIDECAR, clear_stale, generation_lock, removed_on_error, unfinished, write_json
 
 __all__ = ["GenerationError", "GenerationInterrupted", "generate", "merge", "work_dir"]
 
@@ -202,43 +203,20 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
                    **{k: [t[k] for t in timings] for k in TIMING_KEYS},
                    **{EVAL_PREFIX + k: [t[k] for t in eval_timings] for k in TIMING_KEYS}}
         # The sidecar first: a scene counts as done when its MCAP file exists (renamed into place last).
-        _write_json(out / (job.file + SIDECAR), sidecar)
+        write_json(out / (job.file + SIDECAR), sidecar)
         t0 = time.perf_counter()
         with removed_on_error(out / (job.file + ".tmp"), out / (job.file + SIDECAR)):  # nothing left by a full disk
             write_scene_file(out / job.file, SceneRecord(
                 scene, job.index, job.split, list(robot.joint_names),
                 _file_metadata(spec, job, robot.asset_hash, config_hash),
-                grids=grids, trajectories=_stacked(trajectories, robot.dof), episodes=episodes,
-                eval_trajectories=_stacked(solutions, robot.dof), eval_episodes=eval_episodes,
+                grids=grids, trajectories=stacked(trajectories, robot.dof), episodes=episodes,
+                eval_trajectories=stacked(solutions, robot.dof), eval_episodes=eval_episodes,
                 poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
         stages["write"] = time.perf_counter() - t0
-        _write_json(out / (job.file + SIDECAR), sidecar)  # again, with the writing time
+        write_json(out / (job.file + SIDECAR), sidecar)  # again, with the writing time
         return sidecar
     finally:
         torch.set_num_threads(threads)
-
-
-def link_poses(robot, q: np.ndarray) -> dict[str, np.ndarray]:
-    """q (T, n) radians -> link name -> (T, 4, 4) poses in the base frame (float64 forward kinematics)."""
-    import torch
-
-    with torch.no_grad():
-        fk = robot.fk(torch.as_tensor(np.asarray(q), dtype=robot.dtype))
-    names = [*robot.link_meshes, *([] if robot.ee_link in robot.link_meshes else [robot.ee_link])]
-    return {name: fk[name].double().cpu().numpy() for name in names}
-
-
-def _stacked(trajectories: list[np.ndarray], n: int) -> np.ndarray:
-    """K (T, n) trajectories -> (K, T, n); (0, 0, n) for none."""
-    return np.stack(trajectories) if trajectories else np.zeros((0, 0, n))
-
-
-def _write_json(path: Path, data: dict, shared: bool = False) -> None:
-    """Write `data` to `path` atomically; `shared`: a file several processes may write (a unique temporary)."""
-    tmp = unique_tmp(path) if shared else path.with_name(path.name + ".tmp")
-    with removed_on_error(tmp):
-        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
-        tmp.replace(path)
 
 
 # ------------------------------------------------------------------------------------------ shards
@@ -289,7 +267,7 @@ def _generate_locked(spec: DatasetSpec, shard: int | None, num_shards: int, work
 
     jobs = [j for j in spec.scene_jobs() if shard is None or j.index % num_shards == shard]
     clear_stale(work, [j.file for j in jobs])  # before anything new is written: a full disk's leftovers go first
-    _write_json(work / "spec.json", spec.resolved(), shared=True)
+    write_json(work / "spec.json", spec.resolved(), shared=True)
     todo = unfinished(work, jobs, label)  # a damaged scene file is removed and planned again
     if len(todo) < len(jobs):
         print(f"{label}: resuming, {len(jobs) - len(todo)} of {len(jobs)} scenes already done in {work}")

@@ -212,8 +212,8 @@ class _Target:
 def _import_scene(target: _Target, ref: str, index: int, split: str, mine: list[Recorded], summary: dict,
                   bar) -> dict:
     """Check one scene's trajectories, plan its evaluation problems, write its scene file -> its manifest entry."""
-    from samp.data.generation import EVAL_PLANS, EVAL_PROBLEMS, _plan_problems, link_poses
-    from samp.data.mcap_io import SceneRecord, write_scene_file
+    from samp.data.generation import EVAL_PLANS, EVAL_PROBLEMS, _plan_problems
+    from samp.data.mcap_io import SceneRecord, link_poses, stacked, write_scene_file
     from samp.data.registry import SCENE_FILE_VERSION
     from samp.expert.planner import make_planner
     from samp.expert.seeding import derive_seed
@@ -248,8 +248,8 @@ def _import_scene(target: _Target, ref: str, index: int, split: str, mine: list[
     write_scene_file(out / file, SceneRecord(
         scene, index, split, list(robot.joint_names), metadata,
         grids={r: scene.anchor_grid(r, cache=False) for r in cfg.resolutions},
-        trajectories=np.stack(kept) if kept else np.zeros((0, 0, n)), episodes=episodes,
-        eval_trajectories=np.stack(solutions) if solutions else np.zeros((0, 0, n)), eval_episodes=eval_episodes,
+        trajectories=stacked(kept, n), episodes=episodes,
+        eval_trajectories=stacked(solutions, n), eval_episodes=eval_episodes,
         poses=lambda q: link_poses(robot, q), ee_link=robot.ee_link, link_meshes=robot.link_meshes))
     return {"scene_index": index, "name": scene.name, "file": file, "split": split, "generator": "import",
             "seed": 0, "scene_ref": ref, "content_hash": scene.content_hash(), "robot_asset_hash": robot.asset_hash,

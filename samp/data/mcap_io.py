@@ -46,7 +46,7 @@ from samp.data import foxglove as fox
 from samp.names import SPLIT_ALIASES, SPLITS
 from samp.scene.model import Box, Cylinder, Scene, Sphere
 
-__all__ = ["DETOUR_FORMAT", "EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "read_scene_file", "write_scene_file"]
+__all__ = ["link_poses", "stacked", "DETOUR_FORMAT", "EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "read_scene_file", "write_scene_file"]
 
 FRAME = "base"
 STEP_NS = 1_000_000  # format 1: log_time of waypoint t of episode e is e * STEP_NS + t
@@ -334,3 +334,18 @@ def _decoded(episodes: list[dict], waypoints: list[list], n: int) -> tuple[list[
     (written in that order)."""
     trajs = [np.asarray(rows) for rows in waypoints]
     return sorted(episodes, key=lambda e: e["episode"]), (np.stack(trajs) if trajs else np.zeros((0, 0, n)))
+
+
+def link_poses(robot, q: np.ndarray) -> dict[str, np.ndarray]:
+    """q (T, n) radians -> link name -> (T, 4, 4) poses in the base frame (float64 forward kinematics)."""
+    import torch
+
+    with torch.no_grad():
+        fk = robot.fk(torch.as_tensor(np.asarray(q), dtype=robot.dtype))
+    names = [*robot.link_meshes, *([] if robot.ee_link in robot.link_meshes else [robot.ee_link])]
+    return {name: fk[name].double().cpu().numpy() for name in names}
+
+
+def stacked(trajectories: list[np.ndarray], n: int) -> np.ndarray:
+    """K (T, n) trajectories -> (K, T, n); (0, 0, n) for none."""
+    return np.stack(trajectories) if trajectories else np.zeros((0, 0, n))

@@ -234,14 +234,14 @@ def _check(spec: DatasetSpec) -> None:
     require(len(spec.generators) >= 1, "generators must list at least one scene generator")
     stray_splits = sorted(set(spec.scene_files) - set(SPLIT_ORDER))
     require(not stray_splits, f"scene_files has splits {stray_splits}; valid: {list(SPLIT_ORDER)}")
+    hashes = []  # each file scene read once here
     for split, refs in spec.scene_files.items():
         require(len(set(refs)) == len(refs), f"scene_files.{split} lists a file twice: {refs}")
         for ref in refs:
             try:
-                spec.file_scene(ref)
+                hashes.append(spec.file_scene(ref).content_hash())
             except (ValueError, FileNotFoundError) as err:
                 require(False, f"scene_files.{split}: {err}")
-    hashes = [spec.file_scene(r).content_hash() for refs in spec.scene_files.values() for r in refs]
     require(len(set(hashes)) == len(hashes), "scene_files names the same scene twice (two files with one geometry)")
     require(spec.trajectories_per_scene >= 1 or not any(spec.scene_files.get(s) for s in ("train", "val")),
             f"trajectories_per_scene must be >= 1 when scene_files has train or val scenes, got "

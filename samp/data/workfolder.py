@@ -156,3 +156,11 @@ def removed_on_error(tmp: Path, *also: Path):
 def unique_tmp(path: Path) -> Path:
     """A temporary name beside `path` that no other process uses (a file several shards write)."""
     return path.with_name(f"{path.name}.{os.getpid()}-{time.time_ns()}.tmp")
+
+
+def write_json(path: Path, data: dict, shared: bool = False) -> None:
+    """Write `data` to `path` atomically; `shared`: a file several processes may write (a unique temporary)."""
+    tmp = unique_tmp(path) if shared else path.with_name(path.name + ".tmp")
+    with removed_on_error(tmp):
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
+        tmp.replace(path)

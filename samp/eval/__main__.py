@@ -1,10 +1,10 @@
-"""`python -m samp.eval run=RUN_DIR [benchmark=unseen] [splits=[val,train]] [problems=N] [key=value ...]`
+"""`python -m samp.eval run=RUN_DIR [benchmark=[unseen,hard]] [splits=[val,train]] [problems=N] [key=value ...]`
 `python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] ...`
 
 Evaluates a run's policy (or the expert, or the straight-line baseline) under the evaluation protocol
 (`samp.eval.report`): the stored evaluation problems of the run's dataset, per split (validation and
-training scenes, never trained on), and the standing benchmark of unseen scenes, with the expert and the
-straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (without a run:
+training scenes, never trained on), the standing benchmark of unseen scenes and the hard benchmark (every
+problem needs a detour), with the expert and the straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (without a run:
 `<runs folder>/eval/PLANNER_DATASET@ID/`; or `out=DIR`): metrics.json, metrics.md, problems.jsonl and
 recording.rrd. An earlier evaluation there is kept and the new one goes beside it (`eval-2/`, ...), unless
 `overwrite=true`. The evaluation is also logged to MLflow (`samp.tracking`): a run's into its own MLflow
@@ -19,11 +19,11 @@ from pathlib import Path
 
 from samp.cli import compose, output_path, run_command
 
-USAGE = """usage: python -m samp.eval [run=]RUN_DIR [benchmark=unseen|null] [splits=[val,train]] [problems=N] [key=value ...]
+USAGE = """usage: python -m samp.eval [run=]RUN_DIR [benchmark=[unseen,hard]|NAME|null] [splits=[val,train]] [problems=N] [key=value ...]
                                                                           a run's policy
        python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] [key=value ...]
-Sections: the dataset's stored evaluation problems per split (val, train, test scenes) and the standing
-benchmark of unseen scenes, each with the expert and the straight line beside the planner.
+Sections: the dataset's stored evaluation problems per split (val, train, test scenes), the standing
+benchmark of unseen scenes ("benchmark") and the hard one ("hard": every problem needs a detour), each with the expert and the straight line beside the planner.
 Writes RUN_DIR/eval/ (or out=DIR): metrics.json, metrics.md, problems.jsonl and recording.rrd; an earlier
 evaluation in RUN_DIR/eval/ is kept and the new one goes to RUN_DIR/eval-2/ (overwrite=true replaces it)."""
 
@@ -167,7 +167,7 @@ def _evaluate(overrides: list[str]) -> Path:
     """The recipe: config, run, dataset and benchmark, planner, sections, evaluation, files."""
     cfg = _config(overrides)
     # Heavy imports only once the config is known to be good.
-    from samp.eval.benchmark import open_benchmark
+    from samp.eval.benchmark import open_benchmarks
     from samp.eval.loading import check_robot, find_checkpoint, read_run
     from samp.eval.report import evaluate_sections, flat_report, protocol_sections
     from samp.tracking import track_evaluation
@@ -179,27 +179,27 @@ def _evaluate(overrides: list[str]) -> Path:
     if run is not None:
         find_checkpoint(run.path)  # a missing checkpoint fails before any dataset work
     ds = _open_dataset(cfg, run)
-    bench = None
-    if ds is None:  # the benchmark alone: its manifest names the robot
-        bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
-        if bench is None:
+    benches = []
+    if ds is None:  # the benchmarks alone: their manifests name the robot
+        benches = open_benchmarks(cfg.benchmark, cfg.root)
+        if not benches:
             raise ValueError("nothing to evaluate: splits=[] and benchmark=null")
     # (`ds or bench` would skip a dataset without demonstrations: an empty Dataset is falsy)
-    manifest = (ds if ds is not None else bench).manifest
+    manifest = (ds if ds is not None else benches[0].dataset).manifest
     if run is not None:
         check_robot(run, manifest)
     planner = _planner(cfg, run, manifest)  # a bad checkpoint fails before a benchmark is built
     provenance, trained = _provenance(cfg, run, planner, ds) if run is not None else (None, None)
     if ds is not None:
-        bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
-    sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot if hasattr(planner, "robot")
+        benches = open_benchmarks(cfg.benchmark, cfg.root)
+    sections = protocol_sections(cfg, ds if cfg.splits else None, benches, planner.robot if hasattr(planner, "robot")
                                  else None, trained=trained)
-    label = f"{ds.name}@{ds.id}" if ds is not None else f"{bench.name}@{bench.id}"
+    label = f"{ds.name}@{ds.id}" if ds is not None else benches[0].ref
     out = _out_dir(cfg, run, label)
     report = evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
                                dataset=None if ds is None else f"{ds.name}@{ds.id}",
-                               benchmark=None if bench is None else f"{bench.name}@{bench.id}",
-                               provenance=provenance)
+                               benchmark=benches[0].ref if benches else None,
+                               benchmarks={b.section: b.ref for b in benches}, provenance=provenance)
     # into the run's own MLflow run, as a section named after `out` (samp.tracking)
     from samp.data.registry import datasets_root
 

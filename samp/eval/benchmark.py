@@ -5,6 +5,11 @@ generator, in a scene namespace of its own (so no training spec draws the same s
 expert's solution and planning time stored for every problem. It is generated once, like any dataset,
 and then found by name; its id (`bench_NAME@id`) goes into every report that uses it.
 
+`benchmark=[unseen,hard]` (the default) evaluates several: the first is the section "benchmark" (the
+headline, which the paper's tables report), each further one a section of its own name ("hard"). A
+benchmark whose spec draws every problem to need a detour (`detour_share: 1`, `bench_hard`) holds only
+the problems whose straight line was found blocked when they were drawn (`detour_only`).
+
 Whether a scene is unseen is decided by content, not by seeds: `check_unseen` refuses to report a
 test or benchmark problem whose scene (by its content hash) was among the training or validation scenes of
 the dataset the run trained on.
@@ -12,12 +17,48 @@ the dataset the run trained on.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["BENCHMARK_PREFIX", "benchmark_spec", "check_unseen", "open_benchmark", "trained_scene_hashes"]
+__all__ = ["BENCHMARK_PREFIX", "Benchmark", "benchmark_names", "benchmark_spec", "check_unseen", "detour_only",
+           "open_benchmark", "open_benchmarks", "trained_scene_hashes"]
 
 BENCHMARK_PREFIX = "bench_"
-HELD_OUT_SECTIONS = ("test", "benchmark")  # sections that claim scenes the run never saw
+HELD_OUT_SECTIONS = ("test", "benchmark")  # sections that claim scenes the run never saw (and every benchmark's)
+HEADLINE = "benchmark"  # the section of the first benchmark named
+
+
+@dataclass
+class Benchmark:
+    """One benchmark an evaluation runs: its section's name, its name (`unseen`) and its dataset."""
+
+    section: str
+    name: str
+    dataset: object
+
+    @property
+    def ref(self) -> str:
+        return f"{self.dataset.name}@{self.dataset.id}"
+
+
+def benchmark_names(value) -> list[str]:
+    """`benchmark=` as a list of names: null -> [], "unseen" -> ["unseen"], [unseen, hard] -> as given."""
+    if value is None:
+        return []
+    return [str(value)] if isinstance(value, str) else [str(v) for v in value]
+
+
+def detour_only(ds) -> bool:
+    """Whether a benchmark is drawn to need a detour on every problem (its spec's `detour_share` is 1)."""
+    return float((ds.manifest.get("config") or {}).get("detour_share") or 0.0) >= 1.0
+
+
+def open_benchmarks(value, root: str | Path | None = None, workers: int = 2) -> list[Benchmark]:
+    """Every benchmark `value` names (`benchmark_names`), opened (generated once when missing): the first
+    as the section "benchmark", the others under their own names."""
+    names = benchmark_names(value)
+    return [Benchmark(HEADLINE if i == 0 else name, name, open_benchmark(name, root, workers))
+            for i, name in enumerate(names)]
 
 
 def benchmark_spec(name: str) -> str:
@@ -61,7 +102,7 @@ def check_unseen(sections, seen: set[str], trained_on: str) -> None:
     """Refuse test and benchmark sections holding a scene the run trained or validated on (by content
     hash): reported as held out, such a problem would measure recall, not generalisation."""
     for section in sections:
-        if section.name not in HELD_OUT_SECTIONS:
+        if section.name not in HELD_OUT_SECTIONS and not getattr(section, "benchmark", None):
             continue
         clash = sorted({p.scene.name for p in section.problems if _scene_hash(p) in seen})
         if clash:

@@ -49,7 +49,9 @@ class EvalConfig:
     root: str | None = None  # datasets folder (default: datasets/ or $SAMP_DATASETS_DIR)
     splits: list[str] = field(default_factory=lambda: ["val", "train"])  # the dataset's sections: train|val|test
     problems: int | None = 100  # per split, of its stored evaluation problems, fixed by seed (null: all)
-    benchmark: str | None = "unseen"  # the standing benchmark (conf/dataset/bench_NAME.yaml); null: none
+    # benchmarks (conf/dataset/bench_NAME.yaml): the first is the section "benchmark", the others sections of their
+    # own name ("hard"); a single name, or null for none
+    benchmark: Any = field(default_factory=lambda: ["unseen", "hard"])
     benchmark_problems: int | None = None  # of the benchmark's problems (null: all of them)
     seed: int = 0
     out: str | None = None  # output folder; default RUN/eval, or runs/eval/PLANNER_DATASET without a run
@@ -140,8 +142,14 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
     _require(cfg.problems is None or cfg.problems >= 1, "problems", "null or >= 1", cfg.problems)
     _require(cfg.benchmark_problems is None or cfg.benchmark_problems >= 1, "benchmark_problems", "null or >= 1",
              cfg.benchmark_problems)
-    _require(cfg.benchmark is None or (cfg.benchmark and "/" not in cfg.benchmark), "benchmark",
-             "a benchmark name (conf/dataset/bench_NAME.yaml) or null", cfg.benchmark)
+    names = cfg.benchmark if isinstance(cfg.benchmark, (list, tuple)) else [cfg.benchmark]
+    _require(cfg.benchmark is None or (all(isinstance(n, str) and n and "/" not in n for n in names)
+                                       and len(set(names)) == len(names)
+                                       and not set(names[1:]) & {"train", "val", "test", "benchmark"}), "benchmark",
+             "a benchmark name (conf/dataset/bench_NAME.yaml), a list of distinct names ([unseen,hard]) or null",
+             cfg.benchmark)
+    if isinstance(cfg.benchmark, (list, tuple)):
+        cfg.benchmark = list(cfg.benchmark) or None
     _require(cfg.expert_mode in ("replay", "plan"), "expert_mode", "replay | plan", cfg.expert_mode)
     _require(cfg.planner in (None, *PLANNERS), "planner", f"{' | '.join(PLANNERS)} (or give run=RUN_DIR)",
              cfg.planner)

@@ -94,11 +94,13 @@ def _spread(available: list[int], count: int, rng: np.random.Generator) -> list[
     return take
 
 
-def problems_from_dataset(ds, split: str, count: int | None = None, seed: int = 0) -> list[Problem]:
+def problems_from_dataset(ds, split: str, count: int | None = None, seed: int = 0,
+                          detour_only: bool = False) -> list[Problem]:
     """Up to `count` (None: all) of the evaluation problems the dataset stores for its `split` scenes
     ("train" | "val" | "test"; "heldout", the older name, reads as "val"), with the expert's
     solution and planning time, or its failure reason in `expert_reason`. Problems for which no valid goal
-    was found are left out (there is nothing to plan).
+    was found are left out (there is nothing to plan); with `detour_only`, so are those whose straight line
+    from start to goal was not found blocked when they were drawn (their stored `detour` is not true).
 
     Raises ValueError when the dataset predates stored evaluation problems, has no scenes in that split,
     or no problems in them.
@@ -119,7 +121,8 @@ def problems_from_dataset(ds, split: str, count: int | None = None, seed: int = 
         raise ValueError(f"{label} has no {split} scenes (scenes per split: {counts}); evaluate "
                          f"{'splits=[' + ','.join(others) + ']' if others else 'another dataset'}, or generate a "
                          f"dataset with {split}_scenes > 0")
-    stored = {i: [p for p in ds.eval_problems if p["scene"] == i and p["goal"] is not None] for i in scenes}
+    stored = {i: [p for p in ds.eval_problems if p["scene"] == i and p["goal"] is not None
+                  and (p.get("detour") is True or not detour_only)] for i in scenes}
     available = [len(stored[i]) for i in scenes]
     if sum(available) == 0:
         raise ValueError(f"{label} has {split} scenes but no evaluation problems with a valid goal in them; generate "

@@ -5,10 +5,11 @@ training (`samp.train.after_fit`, the model just trained, in memory).
 The protocol (docs/design.md section 4, "protocol 2"): problems come in *sections*, each reported on its own —
 "val" and "train" are the stored evaluation problems of a dataset's validation and training scenes (new
 problems, never trained on), "test" those of its test scenes, "benchmark" the standing benchmark of
-unseen scenes. Beside the planner, the expert (its stored solutions and planning times) and the straight
-joint-space line run on the same problems, always. A section's problems whose straight line collides form
-its hard subset (`<section>_hard`); the benchmark is also reported per scene generator
-(`benchmark_<generator>`). Every rate carries its Wilson 95 % interval (`samp.eval.metrics`).
+unseen scenes, and a section per further benchmark named (`benchmark=[unseen,hard]`: "hard", the problems
+of `bench_hard`, every one drawn to need a detour). Beside the planner, the expert (its stored solutions and
+planning times) and the straight joint-space line run on the same problems, always. A section's problems
+whose straight line collides form its hard subset (`<section>_hard`; not for a benchmark drawn all hard); each
+benchmark is also reported per scene generator (`benchmark_<generator>`, `hard_<generator>`). Every rate carries its Wilson 95 % interval (`samp.eval.metrics`).
 
 Into `out`: metrics.json ({"protocol": 2, "groups": {group: source and size}, "metrics" / "expert" /
 "straight": {group: metrics}, ...}), metrics.md (the table), problems.jsonl (one record per problem and
@@ -43,6 +44,8 @@ class Section:
     grids: object
     source: str
     reconstruction: object = None
+    benchmark: str | None = None  # the benchmark's name (`unseen`) when the section is one
+    all_hard: bool = False  # every problem was drawn to need a detour: no hard subset of its own
 
 
 def grid_source(cfg, ds, robot):
@@ -62,33 +65,41 @@ def grid_source(cfg, ds, robot):
     return source, source
 
 
-def dataset_sections(ds, splits: list[str], count: int | None, seed: int, cfg, robot, name: str | None = None):
+def dataset_sections(ds, splits: list[str], count: int | None, seed: int, cfg, robot, name: str | None = None,
+                     benchmark: str | None = None):
     """One `Section` per split of `ds` ("train" | "val" | "test"), from its stored evaluation problems;
-    `name` renames a single section (the benchmark)."""
+    `name` renames a single section (a benchmark's, `benchmark` its name)."""
+    from samp.eval.benchmark import detour_only
     from samp.eval.problems import problems_from_dataset
 
     sections = []
+    all_hard = benchmark is not None and detour_only(ds)
     for split in splits:
         label = name or split
-        problems = [replace(p, split=label) for p in problems_from_dataset(ds, split, count, seed)]
+        problems = [replace(p, split=label) for p in problems_from_dataset(ds, split, count, seed, all_hard)]
         if not problems:
             raise ValueError(f"dataset {ds.name}@{ds.id} has no evaluation problems in its {split} scenes; pick other "
                              "splits (splits=[train,val]) or a dataset with such scenes")
         grids, reconstruction = grid_source(cfg, ds, robot)
         scenes = len({p.scene_index for p in problems})
-        source = f"{ds.name}@{ds.id}: {len(problems)} stored evaluation problems in {scenes} {split} scene(s)"
-        sections.append(Section(label, problems, grids, source, reconstruction))
+        drawn = " drawn to need a detour (their straight line blocked)" if all_hard else ""
+        source = f"{ds.name}@{ds.id}: {len(problems)} stored evaluation problems{drawn} in {scenes} {split} scene(s)"
+        sections.append(Section(label, problems, grids, source, reconstruction, benchmark, all_hard))
     return sections
 
 
-def protocol_sections(cfg, ds, bench, robot, trained=None):
-    """The sections `cfg` asks for: the dataset's splits, then the benchmark; test and benchmark sections
-    are checked against the scenes of `trained` (the dataset a run trained on)."""
-    from samp.eval.benchmark import check_unseen, trained_scene_hashes
+def protocol_sections(cfg, ds, benches, robot, trained=None):
+    """The sections `cfg` asks for: the dataset's splits, then each benchmark (`samp.eval.benchmark.Benchmark`,
+    a list of them, or None); test and benchmark sections are checked against the scenes of `trained` (the
+    dataset a run trained on)."""
+    from samp.eval.benchmark import Benchmark, check_unseen, trained_scene_hashes
 
     sections = dataset_sections(ds, cfg.splits, cfg.problems, cfg.seed, cfg, robot) if ds is not None else []
-    if bench is not None:
-        sections += dataset_sections(bench, ["test"], cfg.benchmark_problems, cfg.seed, cfg, robot, name="benchmark")
+    if isinstance(benches, Benchmark):
+        benches = [benches]
+    for b in benches or []:
+        sections += dataset_sections(b.dataset, ["test"], cfg.benchmark_problems, cfg.seed, cfg, robot,
+                                     name=b.section, benchmark=b.name)
     if trained is not None:
         check_unseen(sections, trained_scene_hashes(trained), f"{trained.name}@{trained.id}")
     return sections
@@ -100,13 +111,14 @@ def _hard(straight_records: list[dict]) -> list[bool]:
 
 
 def _group_rows(section: Section, hard: list[bool]) -> dict[str, list[int]]:
-    """Group name -> row indices into the section: the section, its hard subset and, for the benchmark,
-    each scene generator."""
-    rows = {section.name: list(range(len(section.problems))),
-            section.name + HARD: [i for i, h in enumerate(hard) if h]}
-    if section.name == "benchmark":
+    """Group name -> row indices into the section: the section, its hard subset (unless the section was drawn
+    all hard) and, for a benchmark, each scene generator."""
+    rows = {section.name: list(range(len(section.problems)))}
+    if not section.all_hard:
+        rows[section.name + HARD] = [i for i, h in enumerate(hard) if h]
+    if section.benchmark is not None or section.name == "benchmark":
         for i, p in enumerate(section.problems):
-            rows.setdefault(f"benchmark_{p.scene.meta.get('generator', 'unknown')}", []).append(i)
+            rows.setdefault(f"{section.name}_{p.scene.meta.get('generator', 'unknown')}", []).append(i)
     return rows
 
 
@@ -145,11 +157,13 @@ def _evaluate_section(planner, section: Section, cfg, expert) -> dict:
 
 
 def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_path: Path | None = None,
-                      dataset: str | None = None, benchmark: str | None = None, provenance=None) -> dict:
+                      dataset: str | None = None, benchmark: str | None = None, provenance=None,
+                      benchmarks: dict[str, str] | None = None) -> dict:
     """Evaluate `planner` (and the expert and the straight line) on every section, write the files into
     `out` (which must exist) and return the report (the content of metrics.json). `provenance`: a
     `samp.eval.binding.Provenance` (a run's checkpoint evaluated from its folder): its record goes into
-    metrics.json and what it qualifies (another dataset, an unverified checkpoint) under the report's title."""
+    metrics.json and what it qualifies (another dataset, an unverified checkpoint) under the report's title.
+    `benchmark`: the headline benchmark's `name@id`; `benchmarks`: {section: `name@id`} of every benchmark."""
     from samp.eval.loading import load_planner
     from samp.eval.metrics import summarize
 
@@ -177,7 +191,9 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
         if section.reconstruction is not None:
             print("  " + section.reconstruction.summary())
     report = {"protocol": PROTOCOL, "planner": planner.name, "run": str(run_path) if run_path else None,
-              "dataset": dataset, "benchmark": benchmark, "groups": groups, "metrics": blocks[planner.name],
+              "dataset": dataset, "benchmark": benchmark,
+              "benchmarks": benchmarks or ({"benchmark": benchmark} if benchmark else {}),
+              "groups": groups, "metrics": blocks[planner.name],
               **{other: blocks.get(other) if planner.name != other else None for other in ("expert", "straight")}}
     if provenance is not None:
         report.update(provenance.record())

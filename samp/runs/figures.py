@@ -151,7 +151,8 @@ def _scene_of(run: Run, record: dict):
     from samp.data import open_dataset
 
     report = run.evaluation or {}
-    ref = report.get("benchmark") if record["group"] == "benchmark" else report.get("dataset")
+    benchmarks = report.get("benchmarks") or {"benchmark": report.get("benchmark")}
+    ref = benchmarks[record["group"]] if record["group"] in benchmarks else report.get("dataset")
     if ref is None:
         raise ValueError(f"{run.path}'s evaluation names no dataset for its {record['group']!r} problems "
                          "(eval/metrics.json): there is no anchor grid to draw")

@@ -11,7 +11,8 @@ the expert variants (`expert_raw`, `ompl_sampling`, samp.eval.planners.EXPERT_VA
 stand-alone `python -m samp.eval planner=expert_raw` (or `ompl_sampling`) results only.
 
 Cells are the benchmark group's: solution time one problem at a time (B = 1), path length, rates in
-percent with their Wilson 95 % interval, and success on the benchmark's hard subset. A row filled by a
+percent with their Wilson 95 % interval, success on the benchmark's hard subset, and Table I's success and
+collision on the hard benchmark (`bench_hard`, group "hard": every problem needs a detour). A row filled by a
 protocol-1 run shows that evaluation's "training / held-out scenes" values as the paper had them, its
 label marked "(protocol 1: train / held-out)", never mixed silently with the benchmark's rows. Every table
 names the benchmark and the datasets its rows' runs used in its title, and the run of each row, marked
@@ -26,8 +27,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 from samp.eval.metrics import metric
-from samp.runs.protocol import (BENCHMARK, BENCHMARK_REF, CURRENT, SOLUTION_TIME_B1, STEP_TIME_B1, hard, interval_keys,
-                                protocol_of)
+from samp.runs.protocol import (BENCHMARK, BENCHMARK_REF, CURRENT, HARD_BENCHMARK, SOLUTION_TIME_B1, STEP_TIME_B1,
+                                hard, interval_keys, protocol_of)
 from samp.runs.registry import Run
 from samp.runs.tables import DASH, fmt, percent
 
@@ -83,7 +84,7 @@ TABLE_II_RATES = (("success [%]", SUCCESS), ("reach [%]", REACH), ("collision [%
 LEGACY_STEP_TIME = metric("inference_time").key  # protocol 1: seconds per policy step
 NOTE = ("Benchmark cells: rates in percent [Wilson 95 % interval]; solution and step time one problem at a time "
         "(B = 1); path length the mean over successful problems; hard subset: the problems whose straight "
-        "joint-space line collides.")
+        "joint-space line collides; hard benchmark: bench_hard, every problem drawn to need a detour.")
 LEGACY_NOTE = (" Rows marked (protocol 1) come from runs evaluated under the legacy protocol: their cells are "
                "\"training scenes / held-out scenes\" of their dataset's demonstration problems, not the benchmark; "
                "evaluate those runs again to put them on the benchmark.")
@@ -167,7 +168,8 @@ def _pair(block: dict, key: str, scale: float = 1.0, digits: int = 3) -> str:
 
 def _title(name: str, filled: list[_Evaluation]) -> str:
     """The table's name, the benchmark(s) and the datasets of its rows' runs."""
-    benchmarks = sorted({str(e.report.get(BENCHMARK_REF)) for e in filled if e.protocol >= CURRENT})
+    benchmarks = sorted({str(ref) for e in filled if e.protocol >= CURRENT
+                         for ref in ((e.report.get("benchmarks") or {}).values() or [e.report.get(BENCHMARK_REF)])})
     datasets = sorted({str(e.report.get("dataset")) for e in filled})
     return (f"{name}, on the standing benchmark of unseen scenes (benchmark {', '.join(benchmarks) or DASH}; "
             f"datasets {', '.join(datasets) or DASH})")
@@ -178,7 +180,8 @@ def _note(filled: list[_Evaluation]) -> str:
 
 
 def table_one(runs: list[Run], root: Path) -> PaperTable:
-    header = ["method", *(title for title, *_ in TABLE_I_COLUMNS), "hard subset success [%]", "run"]
+    header = ["method", *(title for title, *_ in TABLE_I_COLUMNS), "hard subset success [%]",
+              "hard benchmark success [%]", "hard benchmark collision [%]", "run"]
     rows, filled = [], []
     for row in TABLE_I:
         found = _filling(row, runs, root)
@@ -188,10 +191,11 @@ def table_one(runs: list[Run], root: Path) -> PaperTable:
             cells = [_rate(bench, key) if digits is None else _value(bench, key, digits)
                      for _, key, digits, _ in TABLE_I_COLUMNS]
             cells.append(_rate(block.get(hard(BENCHMARK)) or {}, SUCCESS))
+            cells += [_rate(block.get(HARD_BENCHMARK) or {}, key) for key in (SUCCESS, COLLISION)]
             label = row.label
         else:
             cells = [_pair(block, legacy, 100.0 if digits is None else 1.0, digits or 3)
-                     for _, _, digits, legacy in TABLE_I_COLUMNS] + [DASH]
+                     for _, _, digits, legacy in TABLE_I_COLUMNS] + [DASH] * 3
             label = row.label + LEGACY_MARK
         filled += [found] if found is not None else []
         rows.append([label, *cells, DASH if found is None else found.source])

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from samp.eval.metrics import metric_keys, wilson_interval
 from samp.names import EVAL_PREFIX
-from samp.runs.protocol import BENCHMARK, GROUPS, hard, interval_keys, label
+from samp.runs.protocol import BENCHMARK, GROUPS, HARD_BENCHMARK, hard, interval_keys, label
 from samp.runs.registry import Run, check_key, pooled
 from samp.runs.tables import fmt
 
@@ -124,8 +124,8 @@ RATES = metric_keys(flat=True, rate=True)
 
 def _summary_groups(protocol: int | None, planners: list[tuple[str, dict]]) -> list[str]:
     """The groups of problems a summary shows, those the evaluation has: protocol 2's val, train and
-    benchmark scenes and the benchmark's hard subset; protocol 1's train and held-out scenes."""
-    wanted = (*GROUPS[2], hard(BENCHMARK)) if protocol == 2 else GROUPS[1]
+    benchmark scenes, the benchmark's hard subset and the hard benchmark; protocol 1's train and held-out scenes."""
+    wanted = (*GROUPS[2][:3], hard(BENCHMARK), *GROUPS[2][3:]) if protocol == 2 else GROUPS[1]
     return [g for g in wanted if any(g in m for _, m in planners)]
 
 
@@ -168,7 +168,8 @@ def plot_run_summary(run: Run, out: Path) -> Path:
             xs = [j + (i - (len(planners) - 1) / 2) * 0.25 for j in range(len(groups))]
             values, errors = zip(*(_rate_bar(metrics.get(g) or {}, rate) for g in groups)) if groups else ((), ())
             ax.bar(xs, values, width=0.25, yerr=list(zip(*errors)) or None, capsize=2, label=name)
-        ax.set_xticks(range(len(groups)), [g.replace("_", " ") if g.startswith(BENCHMARK) else f"{g} scenes"
+        ax.set_xticks(range(len(groups)), [g.replace("_", " ") if g.startswith((BENCHMARK, HARD_BENCHMARK))
+                                           else f"{g} scenes"
                                            for g in groups])
         ax.set(title=rate.replace("_", " ") + " [%]", ylabel="error bars: Wilson 95 %", ylim=(0, 119))
         ax.grid(axis="y", alpha=0.3)

@@ -5,9 +5,10 @@ Protocol 2 (`<run>/eval/metrics.json` says `"protocol": 2`): the planner, the ex
 line per group of problems, `metrics.json` {"groups": {GROUP: {"source", "problems"}}, "metrics": {GROUP:
 summary}, "expert": ..., "straight": ..., "benchmark": "name@id"}. The groups are "val" (stored
 evaluation problems in the dataset's validation scenes), "train" (new problems in its training scenes),
-"benchmark" (the standing benchmark of unseen scenes, which the paper's tables report), their hard subsets
-("<group>_hard": the straight joint-space line collides) and the benchmark per generator
-("benchmark_tabletop", ...). Every rate has its Wilson 95 % interval beside it (`<rate>_ci_low`,
+"benchmark" (the standing benchmark of unseen scenes, which the paper's tables report), "hard" (the hard
+benchmark, `bench_hard`: every problem drawn to need a detour), their hard subsets ("<group>_hard": the
+straight joint-space line collides; "hard" has none, all of it is) and the benchmarks per generator
+("benchmark_tabletop", "hard_shelf", ...); "benchmarks" maps each benchmark section to its `name@id`. Every rate has its Wilson 95 % interval beside it (`<rate>_ci_low`,
 `<rate>_ci_high`), and the timings are one problem at a time (B = 1) apart from the batched throughput.
 
 Protocol 1 (no "protocol" key; runs evaluated before): problems drawn from the dataset's demonstration
@@ -23,7 +24,7 @@ from samp.eval.metrics import metric, metric_keys, wilson_interval
 from samp.eval.report import PROTOCOL as EVALUATION_PROTOCOL
 from samp.names import EVAL_PREFIX
 
-__all__ = ["BENCHMARK", "BENCHMARK_REF", "BLOCKS", "CURRENT", "GROUPS", "PROTOCOL", "SOLUTION_TIME_B1", "STEP_TIME_B1",
+__all__ = ["BENCHMARK", "BENCHMARK_REF", "HARD_BENCHMARK", "BLOCKS", "CURRENT", "GROUPS", "PROTOCOL", "SOLUTION_TIME_B1", "STEP_TIME_B1",
            "THROUGHPUT", "eval_key", "hard", "interval_keys", "is_rate", "label", "pooled_interval", "protocol_of"]
 
 CURRENT = EVALUATION_PROTOCOL  # what `samp.eval.report` writes now
@@ -36,8 +37,9 @@ LABELS = {
                       "also drove validation"),
 }
 # The groups of problems a run's summary shows, in order (the hard and per-generator subsets come beside them).
-GROUPS = {2: ("val", "train", "benchmark"), 1: ("train", "heldout")}
+GROUPS = {2: ("val", "train", "benchmark", "hard"), 1: ("train", "heldout")}
 BENCHMARK = "benchmark"
+HARD_BENCHMARK = "hard"  # the hard benchmark's group (`bench_hard`), beside the standing one's
 BENCHMARK_REF = "benchmark"  # eval/metrics.json: the benchmark's `name@id` (null when a run was not evaluated on it)
 _LEGACY_ONLY = ("heldout", "all")  # groups only protocol 1 has
 # The blocks of eval/metrics.json besides the planner's own ("metrics"), by the planner name run.json uses.

@@ -15,7 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-from samp.runs.protocol import BENCHMARK, BENCHMARK_REF, BLOCKS, PROTOCOL, eval_key, interval_keys, label
+from samp.runs.protocol import BENCHMARK, BENCHMARK_REF, BLOCKS, HARD_BENCHMARK, PROTOCOL, eval_key, interval_keys, label
 from samp.runs.registry import Run, check_key, pooled, varying_keys
 from samp.tracking import tracked_at
 
@@ -118,6 +118,11 @@ def _warn_protocols(runs: list[Run]) -> None:
               file=sys.stderr)
 
 
+# (group, metric) pairs `default_metrics` puts first: what a policy is judged by, easy and hard problems apart
+HEADLINE = [(group, key) for group in (BENCHMARK, f"{BENCHMARK}_hard", HARD_BENCHMARK)
+            for key in ("success_rate", "collision_rate")]
+
+
 def _mean_std(values: list[float]) -> str:
     if not values:
         return DASH
@@ -133,15 +138,18 @@ def _sort_key(value):
 
 
 def default_metrics(runs: list[Run], limit: int = 8) -> list[str]:
-    """The numeric metrics every run has, at most `limit`: the evaluation's first, the benchmark's before
-    other groups', the run's own planner before the expert and the straight line, rates first (their
-    intervals go with them)."""
+    """The numeric metrics every run has, at most `limit`: the run's own success and collision on the
+    benchmark, its hard subset and the hard benchmark first (`HEADLINE`), then the evaluation's, the
+    benchmarks' before other groups', the run's own planner before the expert and the straight line, rates first
+    (their intervals go with them)."""
     common = set.intersection(*(set(r.metrics) for r in runs)) if runs else set()
     numeric = _folded([m for m in common if all(isinstance(r.metrics[m], (int, float)) for r in runs)], runs)
 
     def order(m: str):
-        planner, group, _ = eval_key(m) or ("", "", "")
-        return not m.startswith("eval/"), group != BENCHMARK, planner in BLOCKS, "rate" not in m, m
+        planner, group, key = eval_key(m) or ("", "", "")
+        head = planner not in BLOCKS and (group, key) in HEADLINE  # the run's own success and collision first
+        return (not head, HEADLINE.index((group, key)) if head else 0, not m.startswith("eval/"), group != BENCHMARK,
+                group != HARD_BENCHMARK, planner in BLOCKS, "rate" not in m, m)
 
     return sorted(numeric, key=order)[:limit]
 
@@ -209,12 +217,13 @@ def show_text(run: Run) -> str:
     """A run's record as text: status and times, lineage, overrides, metrics and files."""
     rec, code = run.record, run.record.get("code_version") or {}
     bench = (run.evaluation or {}).get(BENCHMARK_REF)
+    benches = (run.evaluation or {}).get("benchmarks") or ({BENCHMARK: bench} if bench else {})
     lines = [f"run        {run.path}", f"status     {run.status}" + (f"  ({rec['error']})" if rec.get("error") else ""),
              f"experiment {rec.get('experiment')}   seed {rec.get('seed')}   robot {run.robot}",
              f"started    {rec.get('start')}   ended {rec.get('end')}   starts {len(rec.get('starts') or [])}",
              f"steps      {rec.get('steps')}   epochs {rec.get('epochs')}   fit time {fmt(rec.get('fit_time_s'))} s",
              f"dataset    {rec.get('dataset_id')}   robot SDF {rec.get('robot_sdf_artifact_id')}",
-             f"protocol   {label(run.protocol)}" + (f"   benchmark {bench}" if bench else ""),
+             f"protocol   {label(run.protocol)}" + "".join(f"   {section} {ref}" for section, ref in benches.items()),
              f"code       {code.get('package')} at {code.get('git_commit')}" + (" (dirty)" if code.get("git_dirty") else ""),
              f"host       {rec.get('host')}",
              "overrides  " + " ".join(rec.get("overrides") or [])]

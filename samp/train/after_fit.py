@@ -24,7 +24,7 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     dataset's validation and training scenes (`evaluation.problems` per split) and the standing benchmark
     (`evaluation.benchmark`), with the expert and the straight line beside it; writes `<run_dir>/eval/`
     and the plots (`samp.runs.figures`)."""
-    from samp.eval.benchmark import open_benchmark
+    from samp.eval.benchmark import open_benchmarks
     from samp.eval.binding import Provenance
     from samp.eval.config import load_eval_config
     from samp.eval.report import evaluate_sections, flat_report, protocol_sections
@@ -37,16 +37,17 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     cfg = load_eval_config({"problems": evaluation.problems or None, "splits": splits, "benchmark": evaluation.benchmark,
                             "benchmark_problems": evaluation.get("benchmark_problems"),
                             "overwrite": True, "root": str(Path(ds.path).parents[1])})
-    bench = open_benchmark(cfg.benchmark, cfg.root) if cfg.benchmark else None
+    benches = open_benchmarks(cfg.benchmark, cfg.root)
     system.eval()
     planner = system.planner()
-    sections = protocol_sections(cfg, ds if cfg.splits else None, bench, planner.robot, trained=ds)
+    sections = protocol_sections(cfg, ds if cfg.splits else None, benches, planner.robot, trained=ds)
     out = Path(run_dir) / EVAL_DIR
     out.mkdir(parents=True, exist_ok=True)
     # the model just fitted, in memory: tied to its dataset by construction (its binding), nothing to verify
     provenance = Provenance(system.dataset_id, f"{ds.name}@{ds.id}")
     report = evaluate_sections(planner, sections, cfg, out, run_path=Path(run_dir), dataset=f"{ds.name}@{ds.id}",
-                               benchmark=None if bench is None else f"{bench.name}@{bench.id}", provenance=provenance)
+                               benchmark=benches[0].ref if benches else None,
+                               benchmarks={b.section: b.ref for b in benches}, provenance=provenance)
     try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
         from samp.runs.plots import plot_run_summary
         from samp.runs.registry import load_run

@@ -32,9 +32,13 @@ def resolve_inputs(overrides: list[str]) -> dict:
     out: dict = {k: {} for k in KINDS}
     refs = [str(cfg.datamodule.dataset)] if cfg.datamodule.get("dataset") is not None else []
     if (cfg.get("evaluation") or {}).get("benchmark"):
-        from samp.eval.benchmark import benchmark_spec
+        from omegaconf import OmegaConf
 
-        refs.append(benchmark_spec(str(cfg.evaluation.benchmark)))
+        from samp.eval.benchmark import benchmark_names, benchmark_spec
+
+        value = cfg.evaluation.benchmark
+        refs += [benchmark_spec(n) for n in benchmark_names(OmegaConf.to_object(value) if OmegaConf.is_config(value)
+                                                             else value)]
     for ref in refs:
         pin = _pin_dataset(ref, root)
         if pin:

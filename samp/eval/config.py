@@ -63,7 +63,9 @@ class EvalConfig:
     robot_sdf_tables: int | None = None  # samp policies: robot SDF tables (0: exact; null: the policy's own)
     robot_sdf_pairs: str | None = None  # samp policies: all | near (robot SDF pairs of a step; null: the policy's own)
     compiled: bool | None = None  # samp policies: a step's inputs in one compiled call on a CPU (null: where allowed)
-    check: int | None = None  # samp policies: samp+check with this many candidate rollouts per problem (null: plain)
+    # samp policies: samp+check with this many candidate rollouts per problem, or {candidates: 8, noisy: 4, ...}
+    # (samp.policy.checked.CheckConfig; noisy: the policy's own rollouts with noise on its steps); null: plain
+    check: Any = None
     grid_source: str = "exact"  # exact (the dataset's grids) | reconstructed (from simulated depth cameras)
     camera: str = "default"  # grid_source=reconstructed: camera set, conf/camera/NAME.yaml or a YAML path
     unknown: str = "free"  # grid_source=reconstructed: what space no camera saw becomes: free | occupied
@@ -109,6 +111,23 @@ def _check_rollout(c: RolloutConfig) -> None:
     _require(c.batch_size is None or c.batch_size >= 1, "batch_size", "null or >= 1", c.batch_size)
     _require(isinstance(c.timed_problems, int) and c.timed_problems >= 0, "timed_problems", "an integer >= 0",
              c.timed_problems)
+
+
+def _check_setting(check) -> bool:
+    """Whether `check=` is a number of candidates >= 1 or a valid set of `CheckConfig` fields."""
+    if isinstance(check, bool):
+        return False
+    if isinstance(check, int):
+        return check >= 1
+    if not isinstance(check, dict):
+        return False
+    from samp.policy.checked import CheckConfig
+
+    try:
+        CheckConfig(**check)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"eval config: check={check}: {err}") from None
+    return True
 
 
 def _merge(schema, raw, what: str):
@@ -162,7 +181,9 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
              "robot_sdf_tables", "null, 0 (exact) or an integer >= 2", cfg.robot_sdf_tables)
     _require(cfg.robot_sdf_pairs in (None, "all", "near"), "robot_sdf_pairs", "null, all or near", cfg.robot_sdf_pairs)
     _require(cfg.compiled in (None, True, False), "compiled", "null, true or false", cfg.compiled)
-    _require(cfg.check is None or cfg.check >= 1, "check", "null or a number of candidates >= 1", cfg.check)
+    _require(cfg.check is None or _check_setting(cfg.check), "check",
+             "null, a number of candidates >= 1, or {candidates: K, noisy: N, ...} (samp.policy.checked.CheckConfig)",
+             cfg.check)
     _require(cfg.grid_source in ("exact", "reconstructed"), "grid_source", "exact | reconstructed", cfg.grid_source)
     _require(cfg.unknown in ("occupied", "free"), "unknown", "occupied | free", cfg.unknown)
     cfg.rollout()  # validates the rollout keys

@@ -92,11 +92,12 @@ def protocol_sections(cfg, ds, benches, robot, trained=None):
     """The sections `cfg` asks for: the dataset's splits, then each benchmark (`samp.eval.benchmark.Benchmark`,
     a list of them, or None); test and benchmark sections are checked against the scenes of `trained` (the
     dataset a run trained on)."""
-    from samp.eval.benchmark import Benchmark, check_unseen, trained_scene_hashes
+    from samp.eval.benchmark import BENCHMARK_PREFIX, HEADLINE, Benchmark, check_unseen, trained_scene_hashes
 
     sections = dataset_sections(ds, cfg.splits, cfg.problems, cfg.seed, cfg, robot) if ds is not None else []
-    if isinstance(benches, Benchmark):
-        benches = [benches]
+    if benches is not None and not isinstance(benches, (list, tuple)):  # one benchmark, or its dataset alone
+        benches = [benches if isinstance(benches, Benchmark) else
+                   Benchmark(HEADLINE, benches.name.removeprefix(BENCHMARK_PREFIX), benches)]
     for b in benches or []:
         sections += dataset_sections(b.dataset, ["test"], cfg.benchmark_problems, cfg.seed, cfg, robot,
                                      name=b.section, benchmark=b.name)

@@ -1,9 +1,13 @@
 """samp+check: several rollouts of a step policy in one batch, and the one the scene's anchor grid says is
 clear (after Neural MP's sample-and-check; docs/design.md section 4).
 
-Candidate 0 is the plain rollout. Candidate k >= 1 first heads for a via configuration drawn around the
-midpoint of start and goal (normal, `spread` radians per joint, seeded by the problem's name), and from
-there (within `via_reach` radians of it, or after a third of `max_steps`) for the goal. All candidates step
+Candidate 0 is the plain rollout. Candidates 1 to `noisy` are the policy's own rollouts with noise: they
+head for the goal from the start, and each step gets Gaussian noise of `step_noise` radians per joint
+(seeded by the problem's name) while the candidate is farther than `finish` radians from the goal and within
+the first third of `max_steps`, so they explore around the plain rollout's path (as Neural MP samples its own
+rollouts). Every other candidate first heads for a via configuration drawn around the midpoint of start
+and goal (normal, `spread` radians per joint, seeded by the problem's name), and from there (within
+`via_reach` radians of it, or after a third of `max_steps`) for the goal. All candidates step
 together, one policy call per step. After each step the new segment of every candidate is checked against
 the anchor grid: the grid's SDF, trilinear at the robot points posed at `substeps` configurations along the
 segment, must stay above `margin` metres; a detour that fails this stops there (the plain rollout always
@@ -43,6 +47,8 @@ class CheckConfig:
     """How many candidates, how they spread, and what counts as clear (radians, metres)."""
 
     candidates: int = 8  # rollouts per problem, the plain one included
+    noisy: int = 0  # of them, the policy's own rollouts with noise on its steps (the rest: via configurations)
+    step_noise: float = 0.05  # std of the noise on a noisy candidate's step (rad per joint)
     spread: float = 0.6  # std of the via configurations around the start-goal midpoint, per joint
     via_reach: float = 0.15  # a candidate turns to the goal within this of its via configuration ...
     margin: float = 0.01  # clear: the grid's SDF at every robot point stays above this
@@ -62,6 +68,11 @@ class CheckConfig:
             raise ValueError(f"check.substeps must be an integer >= 1, got {self.substeps!r}")
         if self.finish < 0:
             raise ValueError(f"check.finish must be >= 0 radians (0: no straight finish), got {self.finish}")
+        if not (isinstance(self.noisy, int) and 0 <= self.noisy < self.candidates):
+            raise ValueError(f"check.noisy must be an integer in [0, candidates - 1 = {self.candidates - 1}] (candidate "
+                             f"0 is the plain rollout), got {self.noisy!r}")
+        if self.step_noise < 0:
+            raise ValueError(f"check.step_noise must be >= 0 radians, got {self.step_noise}")
         if self.spread < 0 or self.via_reach <= 0:
             raise ValueError(f"check.spread must be >= 0 and check.via_reach > 0 radians, got {self.spread}, "
                              f"{self.via_reach}")
@@ -73,15 +84,16 @@ class CheckedPolicy:
     def __init__(self, policy, config: CheckConfig | None = None, name: str = "samp+check"):
         self.policy, self.cfg, self.name = policy, config or CheckConfig(), name
         self.robot, self.n_e = policy.robot, policy.n_e
-        self.chosen: dict[str, int] = {"plain": 0, "via": 0, "unclear": 0, "unreached": 0}
+        self.chosen: dict[str, int] = {"plain": 0, "noisy": 0, "via": 0, "unclear": 0, "unreached": 0}
 
     def _vias(self, start: torch.Tensor, goal: torch.Tensor, key: str) -> torch.Tensor:
-        """(K, n) the targets of the first leg: the goal for candidate 0, via configurations for the others."""
+        """(K, n) the targets of the first leg: the goal for candidate 0 and the noisy ones, via configurations
+        for the others."""
         K = self.cfg.candidates
         g = torch.Generator().manual_seed(zlib.crc32(f"{self.cfg.seed}/{key}".encode()))
         noise = torch.randn(K, len(start), generator=g, dtype=torch.float64).to(start)
         vias = clamp_to_limits(self.robot, (start + goal) / 2 + self.cfg.spread * noise)
-        vias[0] = goal
+        vias[:self.cfg.noisy + 1] = goal
         return vias
 
     def _clearance(self, grid: torch.Tensor, bounds, q0: torch.Tensor, q1: torch.Tensor,
@@ -130,7 +142,10 @@ class CheckedPolicy:
         goal_pose = ee_poses(robot, np.asarray(problem.q_goal, dtype=np.float64)[None])
         targets = self._vias(start, goal, problem.name or "")
         heading_goal = torch.zeros(K, dtype=torch.bool, device=dev)
-        heading_goal[0] = True
+        heading_goal[:cfg.noisy + 1] = True
+        noisy = torch.zeros(K, dtype=torch.bool, device=dev)
+        noisy[1:cfg.noisy + 1] = True
+        shake = torch.Generator().manual_seed(zlib.crc32(f"{cfg.seed}/noise/{problem.name or ''}".encode()))
         q = start.repeat(K, 1)
         path = [q.double().cpu().numpy()]
         clear = self._clearance(grid, bounds, q, q).double().cpu().numpy()
@@ -146,6 +161,10 @@ class CheckedPolicy:
                 active = torch.as_tensor(np.flatnonzero(~done), device=dev)
                 q_next = q.clone()
                 q_next[active] = policy.step(q[active], targets[active], env.subset(active))
+                if cfg.noisy and step < cfg.max_steps // 3:  # the noisy candidates explore on their way out
+                    far = noisy & ((q_next - goal).norm(dim=1) > cfg.finish)
+                    kick = cfg.step_noise * torch.randn(K, len(start), generator=shake, dtype=torch.float64)
+                    q_next = torch.where(far[:, None], clamp_to_limits(robot, q_next + kick.to(q_next)), q_next)
                 clear = np.minimum(clear, self._clearance(grid, bounds, q, q_next).double().cpu().numpy())
                 moved = (q_next - q).norm(dim=1).cpu().numpy()
                 q = q_next
@@ -171,7 +190,7 @@ class CheckedPolicy:
                 if done.all():
                     break
         if chosen is not None:
-            self.chosen["plain" if chosen == 0 else "via"] += 1
+            self.chosen["plain" if chosen == 0 else "noisy" if chosen <= cfg.noisy else "via"] += 1
         else:
             chosen = 0
             self.chosen["unclear" if reached[0] else "unreached"] += 1

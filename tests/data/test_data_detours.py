@@ -108,3 +108,20 @@ def test_the_confirmation_benchmark_is_bench_unseens_recipe_on_other_scenes():
 
     unseen, confirm = (load_spec(benchmark_spec(name)).resolved() for name in ("unseen", "confirm"))
     assert {k for k in {*unseen, *confirm} if unseen.get(k) != confirm.get(k)} == {"name", "seed", "scene_namespace"}
+
+
+def test_the_hard_benchmark_draws_every_problem_to_need_a_detour_on_scenes_of_its_own():
+    """`benchmark=hard` is bench_unseen's kind of measurement on problems that need a detour: unseen scenes of
+    every generator in a namespace no other spec uses, every problem drawn with its straight line blocked, and
+    enough problems that at least 400 remain after the ~10 % without an IK goal."""
+    from samp.data import available_specs
+    from samp.data.spec import load_spec
+    from samp.eval.benchmark import benchmark_spec
+
+    hard = load_spec(benchmark_spec("hard"))
+    unseen = load_spec(benchmark_spec("unseen"))
+    assert hard.detour_share == 1.0 and hard.train_scenes == hard.val_scenes == hard.trajectories_per_scene == 0
+    assert set(hard.generators) == set(unseen.generators) == {"tabletop", "shelf", "cabinet", "blocks"}
+    assert hard.test_scenes * hard.eval_problems_per_scene * 0.85 >= 400
+    namespaces = [load_spec(name).resolved().get("scene_namespace") or name for name in available_specs()]
+    assert namespaces.count(hard.scene_namespace) == 1, "no other spec may draw the hard benchmark's scenes"

@@ -122,3 +122,47 @@ def ds_as_test(ds):
     clone.scene_split = ["test"] * len(ds.scene_split)
     clone.eval_problems = [{**p, "split": "test"} for p in ds.eval_problems]
     return clone
+
+
+HARD = {**BENCH, "name": "proto_hard", "scene_namespace": "tests/proto_hard", "detour_share": 1.0}
+
+
+def test_a_second_benchmark_drawn_all_hard_is_its_own_section(datasets, panda, tmp_path):
+    """`benchmark=[unseen,hard]`: the second benchmark is the section "hard", holding exactly its stored problems
+    drawn with a blocked straight line (an oracle read from the dataset itself), reported per generator and
+    without a hard subset of its own; its scenes are checked as unseen like the first benchmark's."""
+    from samp.eval.benchmark import Benchmark
+    from samp.eval.report import evaluate_sections, protocol_sections
+
+    ds, bench = datasets
+    hard = open_dataset(generate(HARD, root=tmp_path / "data", progress=False))
+    cfg = _config(splits=[])
+    sections = protocol_sections(cfg, None, [Benchmark("benchmark", "b", bench), Benchmark("hard", "h", hard)], panda,
+                                 trained=ds)
+    assert [s.name for s in sections] == ["benchmark", "hard"]
+    wanted = {(p["scene"], tuple(np.round(p["goal"], 9))) for p in hard.eval_problems if p.get("detour") is True}
+    assert wanted, "the spec draws detours"
+    got = {(p.scene_index, tuple(np.round(p.q_goal, 9))) for p in sections[1].problems}
+    assert got == wanted
+    report = evaluate_sections(Line(panda), sections, cfg, tmp_path, benchmark=f"{bench.name}@{bench.id}",
+                               benchmarks={"benchmark": f"{bench.name}@{bench.id}", "hard": f"{hard.name}@{hard.id}"})
+    groups = {g: v["problems"] for g, v in report["groups"].items()}
+    assert groups["hard"] == len(wanted) and "hard_hard" not in groups and "benchmark_hard" in groups
+    assert groups["hard_tabletop"] + groups["hard_shelf"] == len(wanted)
+    assert report["benchmarks"]["hard"] == f"{hard.name}@{hard.id}"
+    with pytest.raises(ValueError, match="cannot be reported as unseen"):
+        protocol_sections(cfg, None, [Benchmark("benchmark", "b", bench), Benchmark("hard", "h", ds_as_test(ds))],
+                          panda, trained=ds)
+
+
+@pytest.mark.parametrize("value, names", [(None, []), ("unseen", ["unseen"]), (["unseen", "hard"], ["unseen", "hard"])])
+def test_benchmark_takes_a_name_a_list_or_null(value, names):
+    from samp.eval.benchmark import benchmark_names
+
+    assert benchmark_names(_config(benchmark=value).benchmark) == names
+
+
+@pytest.mark.parametrize("value", [["unseen", "unseen"], ["unseen", "val"], ["a/b"], [""]])
+def test_a_bad_benchmark_list_is_refused(value):
+    with pytest.raises(ValueError, match="benchmark must be"):
+        _config(benchmark=value)

@@ -96,7 +96,7 @@ def test_a_candidate_below_the_margin_is_never_answered_as_clear(panda, problem,
     if checked.chosen["via"]:
         assert got > MARGIN, f"a detour answered as clear has clearance {got:.4f} <= margin {MARGIN}"
     else:
-        assert checked.chosen == {"plain": 0, "via": 0, "unclear": 1, "unreached": 0}, checked.chosen
+        assert checked.chosen == {"plain": 0, "noisy": 0, "via": 0, "unclear": 1, "unreached": 0}, checked.chosen
         assert np.array_equal(answer, plain) and got < MARGIN
 
 
@@ -108,7 +108,7 @@ def test_a_clear_candidate_is_picked_over_an_unclear_one(panda, problem):
     b = 0.02 - extent
     checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=MARGIN))
     result = checked.plan(problem, grids=_field(d, b))
-    assert checked.chosen == {"plain": 0, "via": 1, "unclear": 0, "unreached": 0}, checked.chosen
+    assert checked.chosen == {"plain": 0, "noisy": 0, "via": 1, "unclear": 0, "unreached": 0}, checked.chosen
     assert _clearance(panda, result.trajectory, d, b) > MARGIN
     assert not np.array_equal(result.trajectory[: len(plain)], plain[: len(result.trajectory)])
     from samp.robot.goal import ee_poses, goal_errors
@@ -172,3 +172,31 @@ def test_the_evaluation_hands_samp_check_its_section_grids(panda, blocked):
     result = evaluate(checked, [problem], {"timed_problems": 0}, grids=source)
     assert asked == [16] and checked.chosen["plain"] == 1
     assert result["records"][0]["collision"], "collisions are still checked against the true scene"
+
+
+def test_noisy_candidates_are_the_policys_own_rollouts_shaken(panda, problem):
+    """Candidates from the policy itself (`noisy`): without noise each one is the plain rollout, step for step
+    (so none can be clear where the plain one is not); with noise (seeded) one leaves its path, and the one
+    answered as clear has the oracle's clearance above the margin and reaches the goal."""
+    d = (0.0, -1.0, 0.0)
+    extent, plain = _plain_extent(panda, problem, d)
+    b = 0.02 - extent  # the plain rollout's clearance is 0.02 m, inside the margin
+    still = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=4, noisy=3, step_noise=0.0, margin=MARGIN))
+    answer = still.plan(problem, grids=_field(d, b)).trajectory
+    assert still.chosen == {"plain": 0, "noisy": 0, "via": 0, "unclear": 1, "unreached": 0}
+    assert np.array_equal(answer, plain)
+    shaken = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, noisy=7, step_noise=0.1, margin=MARGIN))
+    answer = shaken.plan(problem, grids=_field(d, b)).trajectory
+    assert shaken.chosen == {"plain": 0, "noisy": 1, "via": 0, "unclear": 0, "unreached": 0}, shaken.chosen
+    assert _clearance(panda, answer, d, b) > MARGIN and not np.array_equal(answer[:len(plain)], plain[:len(answer)])
+    from samp.robot.goal import ee_poses, goal_errors
+
+    pos, _ = goal_errors(ee_poses(panda, answer[-1:]), ee_poses(panda, problem.q_goal[None]))
+    assert pos[0] < 0.02
+
+
+@pytest.mark.parametrize("bad", [{"candidates": 4, "noisy": 4}, {"candidates": 4, "noisy": -1},
+                                 {"candidates": 4, "noisy": 2, "step_noise": -0.1}])
+def test_bad_noisy_settings_are_refused(bad):
+    with pytest.raises(ValueError, match="noisy|step_noise"):
+        CheckConfig(**bad)

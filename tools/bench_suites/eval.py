@@ -71,10 +71,10 @@ def _problems(args, exact) -> list:
     """--problems problems: from the benchmark's stored ones (spread over its scenes), or two generated scenes."""
     if args.benchmark:
         from samp.eval import problems_from_dataset
-        from samp.eval.benchmark import open_benchmark
+        from samp.eval.benchmark import detour_only, open_benchmark
 
-        bench = open_benchmark(args.benchmark)
-        return problems_from_dataset(bench, "test", args.problems, seed=0)
+        bench = open_benchmark(args.benchmark)  # bench_hard: its problems drawn to need a detour, as evaluated
+        return problems_from_dataset(bench, "test", args.problems, seed=0, detour_only=detour_only(bench))
     return bench_problems(exact, bench_scenes(), args.problems)[:args.problems]
 
 

@@ -197,6 +197,7 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.train experiment=samp_no_coll_loss", Compose("experiment=samp_no_coll_loss", LONG)),
     ("python -m samp.train experiment=samp_cpu", Compose("experiment=samp_cpu", LONG)),
     ("python -m samp.train -m sweep=data_scaling", Compose("-m sweep=data_scaling", LONG)),
+    ("python -m samp.train -m sweep=recipe_seeds", Compose("-m sweep=recipe_seeds", LONG)),
     ("python -m samp.train -m sweep=loss_terms", Compose("-m sweep=loss_terms", LONG)),
     ("python -m samp.train experiment=samp_cpu loss=paper", Compose("experiment=samp_cpu loss=paper", LONG)),
     ("SAMP_TRACKING_URI=http://mlflow.example.org:5000 python -m samp.train experiment=samp_n100",

@@ -4,10 +4,10 @@
 Evaluates a run's policy (or the expert, or the straight-line baseline) under the evaluation protocol
 (`samp.eval.report`): the stored evaluation problems of the run's dataset, per split (validation and
 training scenes, never trained on), the standing benchmark of unseen scenes and the hard benchmark (every
-problem needs a detour), with the expert and the straight line beside it on the same problems. Writes into `RUN_DIR/eval/` (without a run:
-`<runs folder>/eval/PLANNER_DATASET@ID/`; or `out=DIR`): metrics.json, metrics.md, problems.jsonl and
-recording.rrd. An earlier evaluation there is kept and the new one goes beside it (`eval-2/`, ...), unless
-`overwrite=true`. The evaluation is also logged to MLflow (`samp.tracking`): a run's into its own MLflow
+problem needs a detour), with the expert and the straight line beside it on the same problems. Writes into
+`RUN_DIR/eval/` (without a run: `<runs folder>/eval/PLANNER_DATASET@ID/`; or `out=DIR`): metrics.json,
+metrics.md, problems.jsonl and recording.rrd. An earlier evaluation there is kept and the new one goes beside
+it (`eval-2/`, ...), unless `overwrite=true`. The evaluation is also logged to MLflow (`samp.tracking`): a run's into its own MLflow
 run, as a section named after the folder (`eval-2/...`), unless `SAMP_TRACKING_URI=off`. Settings:
 conf/eval.yaml (schema: samp/eval/config.py).
 """
@@ -19,11 +19,12 @@ from pathlib import Path
 
 from samp.cli import compose, output_path, run_command
 
-USAGE = """usage: python -m samp.eval [run=]RUN_DIR [benchmark=[unseen,hard]|NAME|null] [splits=[val,train]] [problems=N] [key=value ...]
-                                                                          a run's policy
+USAGE = """usage: python -m samp.eval [run=]RUN_DIR [benchmark=[unseen,hard]|NAME|null] [splits=[val,train]]
+                          [problems=N] [key=value ...]                    a run's policy
        python -m samp.eval planner=expert|expert_raw|ompl_sampling|straight dataset=REF [out=DIR] [key=value ...]
 Sections: the dataset's stored evaluation problems per split (val, train, test scenes), the standing
-benchmark of unseen scenes ("benchmark") and the hard one ("hard": every problem needs a detour), each with the expert and the straight line beside the planner.
+benchmark of unseen scenes ("benchmark") and the hard one ("hard": every problem needs a detour), each
+with the expert and the straight line beside the planner.
 Writes RUN_DIR/eval/ (or out=DIR): metrics.json, metrics.md, problems.jsonl and recording.rrd; an earlier
 evaluation in RUN_DIR/eval/ is kept and the new one goes to RUN_DIR/eval-2/ (overwrite=true replaces it)."""
 

@@ -8,8 +8,9 @@ problems, never trained on), "test" those of its test scenes, "benchmark" the st
 unseen scenes, and a section per further benchmark named (`benchmark=[unseen,hard]`: "hard", the problems
 of `bench_hard`, every one drawn to need a detour). Beside the planner, the expert (its stored solutions and
 planning times) and the straight joint-space line run on the same problems, always. A section's problems
-whose straight line collides form its hard subset (`<section>_hard`; not for a benchmark drawn all hard); each
-benchmark is also reported per scene generator (`benchmark_<generator>`, `hard_<generator>`). Every rate carries its Wilson 95 % interval (`samp.eval.metrics`).
+whose straight line collides form its hard subset (`<section>_hard`; not for a benchmark drawn all hard);
+each benchmark is also reported per scene generator (`benchmark_<generator>`, `hard_<generator>`). Every
+rate carries its Wilson 95 % interval (`samp.eval.metrics`).
 
 Into `out`: metrics.json ({"protocol": 2, "groups": {group: source and size}, "metrics" / "expert" /
 "straight": {group: metrics}, ...}), metrics.md (the table), problems.jsonl (one record per problem and

@@ -46,9 +46,18 @@ class Run:
         return {**flatten(self.record.get("config") or {}), **flatten(record), PROTOCOL: self.protocol,
                 "status": self.status}
 
-    @property
+    @cached_property
     def metrics(self) -> dict:
-        return self.record.get("metrics") or {}
+        """run.json's metrics, with those of the run's evaluation (eval/metrics.json, protocol 2) over them: a
+        later `python -m samp.eval run=RUN overwrite=true` (another benchmark, samp+check) replaces that file,
+        and tables then show what it measured."""
+        metrics = dict(self.record.get("metrics") or {})
+        report = self.evaluation
+        if report and int(report.get(PROTOCOL, 1)) >= 2 and report.get("planner"):
+            from samp.eval.report import flat_report
+
+            metrics.update(flat_report(report, report["planner"]))
+        return metrics
 
     @property
     def name(self) -> str:

@@ -47,11 +47,14 @@ def summary(n: int, success: int, reach: int, collision: int, time_b1=0.0123, st
 
 def policy_groups(bench=(56, 57, 1), hard=(16, 17, 1)) -> dict:
     return {"val": summary(30, 27, 28, 1), "train": summary(30, 29, 29, 0), "benchmark": summary(60, *bench),
-            "benchmark_hard": summary(20, *hard), "benchmark_tabletop": summary(15, 15, 15, 0)}
+            "benchmark_hard": summary(20, *hard), "benchmark_tabletop": summary(15, 15, 15, 0),
+            "hard": summary(40, 30, 35, 3)}
 
 
-EXPERT = {"benchmark": summary(60, 60, 60, 0, time_b1=0.79, length=0.7), "benchmark_hard": summary(20, 20, 20, 0)}
-STRAIGHT = {"benchmark": summary(60, 40, 60, 20, time_b1=0.002, length=0.9), "benchmark_hard": summary(20, 0, 20, 20)}
+EXPERT = {"benchmark": summary(60, 60, 60, 0, time_b1=0.79, length=0.7), "benchmark_hard": summary(20, 20, 20, 0),
+          "hard": summary(40, 40, 40, 0)}
+STRAIGHT = {"benchmark": summary(60, 40, 60, 20, time_b1=0.002, length=0.9), "benchmark_hard": summary(20, 0, 20, 20),
+            "hard": summary(40, 6, 40, 34)}
 
 
 def protocol_2_run(root, experiment: str, start: str, policy: dict | None = None, **record):
@@ -208,8 +211,11 @@ def test_default_metrics_prefer_the_benchmark(tmp_path):
 
     protocol_2_run(tmp_path, "samp_n100", "2026-03-01T00:00:00")
     got = default_metrics(find_runs(tmp_path))
-    assert got[:3] == [f"eval/samp/benchmark/{r}" for r in ("collision_rate", "reach_rate", "success_rate")], got
-    assert all("/benchmark/" in m and "_ci_" not in m for m in got), got
+    # what a policy is judged by first: success and collision, on the benchmark, its hard subset, the hard benchmark
+    assert got[:6] == [f"eval/samp/{g}/{r}" for g in ("benchmark", "benchmark_hard", "hard")
+                       for r in ("success_rate", "collision_rate")], got
+    assert all("/benchmark/" in m for m in got[6:]), got
+    assert all("_ci_" not in m for m in got), got
 
 
 def test_paper_tables_come_from_the_benchmark(runs, capsys):
@@ -222,17 +228,18 @@ def test_paper_tables_come_from_the_benchmark(runs, capsys):
     assert one.startswith(f"# Table I: motion planning, on the standing benchmark of unseen scenes (benchmark {BENCH}; "
                           f"datasets paper@abc, {DATASET})"), one.splitlines()[0]
     header = _row(one, "method")
-    assert header[1:6] == ["soln. time, B = 1 [s]", "path length [m]", "success [%]", "collision [%]",
-                           "hard subset success [%]"], header
+    assert header[1:8] == ["soln. time, B = 1 [s]", "path length [m]", "success [%]", "collision [%]",
+                           "hard subset success [%]", "hard benchmark success [%]", "hard benchmark collision [%]"], header
     source = f"samp_n100/{new.name} ({DATASET})"
     assert _row(one, "SAMP (100 anchors)") == ["SAMP (100 anchors)", "0.0123", "0.84", pct(56, 60), pct(1, 60),
-                                               pct(16, 20), source]
-    assert _row(one, "Expert (OMPL)") == ["Expert (OMPL)", "0.79", "0.7", pct(60, 60), pct(0, 60), pct(20, 20), source]
+                                               pct(16, 20), pct(30, 40), pct(3, 40), source]
+    assert _row(one, "Expert (OMPL)") == ["Expert (OMPL)", "0.79", "0.7", pct(60, 60), pct(0, 60), pct(20, 20),
+                                          pct(40, 40), pct(0, 40), source]
     assert _row(one, "Straight line (joint space)") == ["Straight line (joint space)", "0.002", "0.9", pct(40, 60),
-                                                        pct(20, 60), pct(0, 20), source]
-    assert _row(one, "MPiNet (protocol 1: train / held-out)")[1:6] == ["0.073 / 0.074", "0.8 / 1", "82 / 75",
-                                                                       "10 / 13", "-"]
-    assert _row(one, "MPNet") == ["MPNet", *["-"] * 6]
+                                                        pct(20, 60), pct(0, 20), pct(6, 40), pct(34, 40), source]
+    assert _row(one, "MPiNet (protocol 1: train / held-out)")[1:8] == ["0.073 / 0.074", "0.8 / 1", "82 / 75",
+                                                                       "10 / 13", "-", "-", "-"]
+    assert _row(one, "MPNet") == ["MPNet", *["-"] * 8]
     assert "Rows marked (protocol 1)" in one and "[Wilson 95 % interval]" in one
     two = (root / "tables" / "table_2.md").read_text()
     assert _row(two, "anchors n_e")[2:6] == ["step time, B = 1 [s]", "success [%]", "reach [%]", "collision [%]"]
@@ -287,8 +294,11 @@ def test_run_summary_plots_rates_with_wilson_error_bars(runs, monkeypatch):
     for folder in (new, old):
         _png(plot_run_summary(load_run(folder), root / f"{folder.parent.name}.png"))
     (_, new_panels), (_, old_panels) = saved
-    ylabel, segments = new_panels[1]  # success rate: policy, expert, straight over val, train, benchmark, benchmark_hard
-    assert ylabel == "error bars: Wilson 95 %" and len(segments) == 3 * 4, (ylabel, len(segments))
+    ylabel, segments = new_panels[1]  # success rate: policy, expert, straight over val, train, benchmark,
+    assert ylabel == "error bars: Wilson 95 %" and len(segments) == 3 * 5, (ylabel, len(segments))  # its hard subset, hard
+    low, high = wilson(30, 40)
+    (_, got_low), (_, got_high) = segments[4]  # the policy's bar on the hard benchmark, last
+    assert (got_low, got_high) == pytest.approx((100 * low, 100 * high)), (got_low, got_high)
     low, high = wilson(56, 60)
     (_, got_low), (_, got_high) = segments[2]  # the policy's bar on the benchmark
     assert (got_low, got_high) == pytest.approx((100 * low, 100 * high)), (got_low, got_high)

@@ -87,11 +87,11 @@ def test_paper_tables_fill_rows_from_runs_and_dash_the_rest(tmp_path, monkeypatc
     _evaluated_run(tmp_path, "samp_n100", "2026-01-02T00:00:00", samp, expert, epochs=4, fit_time_s=1080.0)
     main(["paper-tables", "--root", str(tmp_path), "--out", str(tmp_path / "tables")])
     one = (tmp_path / "tables" / "table_1.md").read_text()  # protocol-1 runs: "train / held-out" cells, marked
-    assert ("| Expert (OMPL) (protocol 1: train / held-out) | 0.79 / 0.81 | 0.7 / 0.8 | 100 / 100 | 0 / 0 | - "
+    assert ("| Expert (OMPL) (protocol 1: train / held-out) | 0.79 / 0.81 | 0.7 / 0.8 | 100 / 100 | 0 / 0 | - | - | - "
             "| samp_n100/2026-01-02T00-00-00 (paper@abc) |") in one
-    assert "| SAMP (100 anchors) (protocol 1: train / held-out) | 0.073 / 0.074 | 0.8 / 1 | 82 / 75 | 10 / 13 | - |" in one
-    assert "| MPiNet | - | - | - | - | - | - |" in one and "| SAMP (160 anchors) | - |" in one
-    assert "| Straight line (joint space) | - | - | - | - | - | - |" in one  # no straight block in these evaluations
+    assert "| SAMP (100 anchors) (protocol 1: train / held-out) | 0.073 / 0.074 | 0.8 / 1 | 82 / 75 | 10 / 13 | - | - | - |" in one
+    assert "| MPiNet | - | - | - | - | - | - | - | - |" in one and "| SAMP (160 anchors) | - |" in one
+    assert "| Straight line (joint space) | - | - | - | - | - | - | - | - |" in one  # no straight block in these evaluations
     two = (tmp_path / "tables" / "table_2.md").read_text()
     assert "| 100 (protocol 1: train / held-out) | 270 | 0.0015 | 82 / 75 | 88 / 83 | 10 / 13 |" in two
     assert "| 40 | - | - | - | - | - | - |" in two

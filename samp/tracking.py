@@ -211,6 +211,8 @@ def _log_section(mlflow_client, run_id: str, section: str, report: dict, metrics
     for start in range(0, len(items), 1000):  # MLflow takes at most 1000 metrics a batch
         mlflow_client.log_batch(run_id, metrics=items[start:start + 1000])
     prefix = "samp." if section == "eval" else f"samp.{section}."
-    for key, value in (("benchmark_id", report.get("benchmark")), ("eval_dataset_id", report.get("dataset"))):
+    others = {f"{name}_benchmark_id": ref for name, ref in (report.get("benchmarks") or {}).items() if name != "benchmark"}
+    for key, value in (("benchmark_id", report.get("benchmark")), ("eval_dataset_id", report.get("dataset")),
+                       *others.items()):
         if value:
             mlflow_client.set_tag(run_id, prefix + key, str(value))

@@ -100,9 +100,12 @@ def finish_training(logger, record: dict, run_dir: Path) -> None:
 
     mlflow_client, run_id = logger.experiment, logger.run_id
     report = Path(run_dir) / EVAL_DIR / METRICS_JSON
-    benchmark = json.loads(report.read_text()).get("benchmark") if report.is_file() else None
-    if benchmark:
-        mlflow_client.set_tag(run_id, "samp.benchmark_id", benchmark)
+    written = json.loads(report.read_text()) if report.is_file() else {}
+    benchmarks = written.get("benchmarks") or {"benchmark": written.get("benchmark")}
+    for section, ref in benchmarks.items():  # samp.benchmark_id, samp.hard_benchmark_id, ...
+        if ref:
+            key = "benchmark_id" if section == "benchmark" else f"{section}_benchmark_id"
+            mlflow_client.set_tag(run_id, f"samp.{key}", ref)
     config = record.get("config") or {}
     log_dataset(mlflow_client, run_id, record.get("dataset_id"), (config.get("paths") or {}).get("datasets_dir"),
                 "training")

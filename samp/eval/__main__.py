@@ -115,6 +115,8 @@ def _planner(cfg, run, manifest: dict):
             options["trust_checkpoint"] = True
         if cfg.check is not None:
             options["check"] = cfg.check
+        if cfg.stride is not None:
+            options["stride"] = cfg.stride
         policy = load_planner(run.path, device=cfg.device, **options)
         check_policy_robot(policy, manifest)
         own = getattr(policy, "n_e", None)

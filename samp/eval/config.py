@@ -66,6 +66,7 @@ class EvalConfig:
     # samp policies: samp+check with this many candidate rollouts per problem, or {candidates: 8, noisy: 4, ...}
     # (samp.policy.checked.CheckConfig; noisy: the policy's own rollouts with noise on its steps); null: plain
     check: Any = None
+    stride: float | None = None  # samp policies: each step moves this many times the predicted step (null: 1, as trained)
     grid_source: str = "exact"  # exact (the dataset's grids) | reconstructed (from simulated depth cameras)
     camera: str = "default"  # grid_source=reconstructed: camera set, conf/camera/NAME.yaml or a YAML path
     unknown: str = "free"  # grid_source=reconstructed: what space no camera saw becomes: free | occupied
@@ -184,6 +185,7 @@ def load_eval_config(raw: DictConfig | dict[str, Any]) -> EvalConfig:
     _require(cfg.check is None or _check_setting(cfg.check), "check",
              "null, a number of candidates >= 1, or {candidates: K, noisy: N, ...} (samp.policy.checked.CheckConfig)",
              cfg.check)
+    _require(cfg.stride is None or 0 < cfg.stride <= 4, "stride", "null or a number in (0, 4]", cfg.stride)
     _require(cfg.grid_source in ("exact", "reconstructed"), "grid_source", "exact | reconstructed", cfg.grid_source)
     _require(cfg.unknown in ("occupied", "free"), "unknown", "occupied | free", cfg.unknown)
     cfg.rollout()  # validates the rollout keys

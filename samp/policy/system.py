@@ -147,18 +147,20 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         return denormalize(u, self.limits)
 
     def planner(self, robot_sdf_tables: int | None = None, check: int | dict | None = None,
-                robot_sdf_pairs: str | None = None, compiled: bool | None = None, **options):
+                robot_sdf_pairs: str | None = None, compiled: bool | None = None, stride: float = 1.0,
+                **options):
         """The current weights as a `StepPolicy` (`SAMPStepPolicy`), for rollouts and `EvalCallback`.
         `robot_sdf_tables` replaces the system's own (0: the exact robot SDF at the robot points);
         `robot_sdf_pairs` likewise ("all" | "near", see the class). `compiled`: the step's inputs in one
         compiled call on a CPU (`SAMPStepPolicy`; None: wherever the system allows it, False: the torch path).
         `check`: a number of candidates, or `CheckConfig` fields, gives the checked planner instead
-        (`samp.policy.checked.CheckedPolicy`, "samp+check", a `TrajectoryPlanner`)."""
+        (`samp.policy.checked.CheckedPolicy`, "samp+check", a `TrajectoryPlanner`). `stride`: each step moves
+        that many times the predicted step (`SAMPStepPolicy`)."""
         from samp.policy.step import SAMPStepPolicy
 
         if options:
-            raise ValueError("the samp policy takes only robot_sdf_tables, robot_sdf_pairs, compiled and check as "
-                             f"planner options, got {sorted(options)}")
+            raise ValueError("the samp policy takes only robot_sdf_tables, robot_sdf_pairs, compiled, check and "
+                             f"stride as planner options, got {sorted(options)}")
         if robot_sdf_tables is not None:
             if not isinstance(robot_sdf_tables, int) or robot_sdf_tables < 0 or robot_sdf_tables == 1:
                 raise ValueError(f"robot_sdf_tables must be 0 (exact) or an integer >= 2, got {robot_sdf_tables!r}")
@@ -166,7 +168,9 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         if robot_sdf_pairs is not None or robot_sdf_tables is not None:  # new tables alone: their default pairs
             self._set_pairs(robot_sdf_pairs)
         if check is None:
-            return SAMPStepPolicy(self, compiled=compiled)
+            return SAMPStepPolicy(self, compiled=compiled, stride=stride)
+        if stride != 1.0:
+            raise ValueError("stride applies to the plain policy; samp+check (check=...) steps as trained")
         from samp.policy.checked import CheckConfig, CheckedPolicy
 
         config = CheckConfig(**check) if isinstance(check, dict) else CheckConfig(candidates=check)

@@ -86,3 +86,24 @@ def test_other_bounds_and_another_n_e_are_refused(trained):
     fresh = load_policy(path)  # a first step resets: the checks run there too
     with pytest.raises(ValueError, match="reads grids at n_e = 16"):
         fresh.step(b["q"], b["q_goal"], coarse)
+
+
+def test_a_stride_scales_the_predicted_step(trained):
+    """`stride=s` moves s times the network's predicted step, clamped to the joint limits (the oracle: the plain
+    step of the same policy); a stride that is no number in (0, 4] is refused, and samp+check refuses one."""
+    from samp.policy import load_policy
+    from samp.policy.interface import clamp_to_limits
+
+    dm, system, path = trained
+    env, b = _env(dm)
+    plain, long = load_policy(path, compiled=False), load_policy(path, compiled=False, stride=2.0)
+    plain.reset(env)
+    long.reset(env)
+    step = plain.step(b["q"], b["q_goal"], env)
+    want = clamp_to_limits(plain.robot, b["q"] + 2.0 * (step - b["q"]))
+    assert torch.allclose(long.step(b["q"], b["q_goal"], env), want, atol=1e-6)
+    for bad in (0, -1.0, 5.0, "2"):
+        with pytest.raises(ValueError, match="stride"):
+            load_policy(path, stride=bad)
+    with pytest.raises(ValueError, match="stride applies to the plain policy"):
+        load_policy(path, stride=2.0, check=4)

@@ -162,7 +162,8 @@ class CheckedPolicy:
                 q_next = q.clone()
                 q_next[active] = policy.step(q[active], targets[active], env.subset(active))
                 if cfg.noisy and step < cfg.max_steps // 3:  # the noisy candidates explore on their way out
-                    far = noisy & ((q_next - goal).norm(dim=1) > cfg.finish)
+                    running = torch.as_tensor(~done, device=dev)  # a finished candidate keeps its end
+                    far = noisy & running & ((q_next - goal).norm(dim=1) > cfg.finish)
                     kick = cfg.step_noise * torch.randn(K, len(start), generator=shake, dtype=torch.float64)
                     q_next = torch.where(far[:, None], clamp_to_limits(robot, q_next + kick.to(q_next)), q_next)
                 clear = np.minimum(clear, self._clearance(grid, bounds, q, q_next).double().cpu().numpy())

@@ -30,7 +30,8 @@ class SAMPStepPolicy(Plannable):
 
         system.fitted()
         if not (isinstance(stride, (int, float)) and 0 < stride <= 4):
-            raise ValueError(f"stride must be a number in (0, 4] (times the predicted step; 1: as trained), got {stride!r}")
+            raise ValueError(f"stride must be a number in (0, 4] (times the predicted step; 1: as trained), "
+                             f"got {stride!r}")
         self.system, self.robot, self.name, self.n_e = system, system.robot, name, system.n_e
         self.stride = float(stride)
         self._features = None

@@ -211,8 +211,14 @@ def _log_section(mlflow_client, run_id: str, section: str, report: dict, metrics
     for start in range(0, len(items), 1000):  # MLflow takes at most 1000 metrics a batch
         mlflow_client.log_batch(run_id, metrics=items[start:start + 1000])
     prefix = "samp." if section == "eval" else f"samp.{section}."
-    others = {f"{name}_benchmark_id": ref for name, ref in (report.get("benchmarks") or {}).items() if name != "benchmark"}
-    for key, value in (("benchmark_id", report.get("benchmark")), ("eval_dataset_id", report.get("dataset")),
-                       *others.items()):
+    tags = {**benchmark_tags(report.get("benchmarks") or {}), "eval_dataset_id": report.get("dataset")}
+    for key, value in tags.items():
         if value:
             mlflow_client.set_tag(run_id, prefix + key, str(value))
+
+
+def benchmark_tags(benchmarks: dict[str, str]) -> dict[str, str]:
+    """An evaluation's benchmarks ({section: `name@id`}) as tag keys: `benchmark_id` for the headline section,
+    `<section>_benchmark_id` (`hard_benchmark_id`) for the others."""
+    return {("benchmark_id" if section == "benchmark" else f"{section}_benchmark_id"): ref
+            for section, ref in benchmarks.items()}

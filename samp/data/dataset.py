@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.data.mcap_io import DETOUR_FORMAT, TIMED_FORMAT, SceneRecord, read_scene_file, write_scene_file
+from samp.data.mcap_io import (DETOUR_FORMAT, TIMED_FORMAT, SceneRecord, link_poses, read_scene_file, stacked,
+                               write_scene_file)
 from samp.data.registry import (DatasetError, datasets_root, file_problems, finalize_dataset, read_manifest,
                                 recreate_hint, resolve_ref)
 from samp.names import SPLIT_ALIASES, SPLITS
@@ -195,15 +196,13 @@ def _scene_record(ds: Dataset, i: int) -> tuple[SceneRecord, dict]:
                 "purpose": "evaluation", "start": p["start"], "goal": p["goal"], "goal_pose": p["goal_pose"],
                 "stats": p["stats"], **({"detour": p["detour"]} if detours else {})} for p in problems]
     solutions = [p["solution"] for p in problems if p["success"]]
-    n = len(ds.joint_names)
     record = SceneRecord(ds.scenes[i], info["scene_index"], ds.scene_split[i], ds.joint_names, ds.metadata[i],
                          grids={n_e: ds.grid(i, n_e) for n_e in ds.resolutions},
                          trajectories=ds.trajectories[ds.traj_scene == i].numpy(), episodes=episodes,
-                         eval_trajectories=np.stack(solutions) if solutions else np.zeros((0, 0, n)),
+                         eval_trajectories=stacked(solutions, len(ds.joint_names)),
                          eval_episodes=records, has_eval_topics=ds.has_eval_problems)
     if record.format_version >= TIMED_FORMAT:  # what the file carries for viewers, from the robot
         from samp.data.generation import _robot
-        from samp.data.mcap_io import link_poses
 
         robot = _robot(ds.manifest["robot"]["name"])
         record.poses, record.ee_link, record.link_meshes = (lambda q: link_poses(robot, q)), robot.ee_link, robot.link_meshes

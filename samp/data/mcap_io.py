@@ -46,7 +46,8 @@ from samp.data import foxglove as fox
 from samp.names import SPLIT_ALIASES, SPLITS
 from samp.scene.model import Box, Cylinder, Scene, Sphere
 
-__all__ = ["link_poses", "stacked", "DETOUR_FORMAT", "EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "read_scene_file", "write_scene_file"]
+__all__ = ["DETOUR_FORMAT", "EPISODE_SCHEMA", "TIMED_FORMAT", "SceneRecord", "link_poses", "read_scene_file", "stacked",
+           "write_scene_file"]
 
 FRAME = "base"
 STEP_NS = 1_000_000  # format 1: log_time of waypoint t of episode e is e * STEP_NS + t
@@ -333,7 +334,7 @@ def _decoded(episodes: list[dict], waypoints: list[list], n: int) -> tuple[list[
     """Records in episode order, and (E_ok, T, n) the waypoints of the successful ones in the same order
     (written in that order)."""
     trajs = [np.asarray(rows) for rows in waypoints]
-    return sorted(episodes, key=lambda e: e["episode"]), (np.stack(trajs) if trajs else np.zeros((0, 0, n)))
+    return sorted(episodes, key=lambda e: e["episode"]), stacked(trajs, n)
 
 
 def link_poses(robot, q: np.ndarray) -> dict[str, np.ndarray]:

@@ -7,9 +7,9 @@ training scenes, never trained on), the standing benchmark of unseen scenes and 
 problem needs a detour), with the expert and the straight line beside it on the same problems. Writes into
 `RUN_DIR/eval/` (without a run: `<runs folder>/eval/PLANNER_DATASET@ID/`; or `out=DIR`): metrics.json,
 metrics.md, problems.jsonl and recording.rrd. An earlier evaluation there is kept and the new one goes beside
-it (`eval-2/`, ...), unless `overwrite=true`. The evaluation is also logged to MLflow (`samp.tracking`): a run's into its own MLflow
-run, as a section named after the folder (`eval-2/...`), unless `SAMP_TRACKING_URI=off`. Settings:
-conf/eval.yaml (schema: samp/eval/config.py).
+it (`eval-2/`, ...), unless `overwrite=true`. The evaluation is also logged to MLflow (`samp.tracking`): a
+run's into its own MLflow run, as a section named after the folder (`eval-2/...`), unless
+`SAMP_TRACKING_URI=off`. Settings: conf/eval.yaml (schema: samp/eval/config.py).
 """
 
 from __future__ import annotations
@@ -200,9 +200,7 @@ def _evaluate(overrides: list[str]) -> Path:
     label = f"{ds.name}@{ds.id}" if ds is not None else benches[0].ref
     out = _out_dir(cfg, run, label)
     report = evaluate_sections(planner, sections, cfg, out, run_path=run.path if run else None,
-                               dataset=None if ds is None else f"{ds.name}@{ds.id}",
-                               benchmark=benches[0].ref if benches else None,
-                               benchmarks={b.section: b.ref for b in benches}, provenance=provenance)
+                               dataset=None if ds is None else f"{ds.name}@{ds.id}", provenance=provenance)
     # into the run's own MLflow run, as a section named after `out` (samp.tracking)
     from samp.data.registry import datasets_root
 

@@ -27,8 +27,8 @@ from pathlib import Path
 
 from samp.cli import paste
 
-__all__ = ["PROTOCOL", "Section", "dataset_sections", "evaluate_sections", "flat_report", "grid_source",
-           "protocol_sections"]
+__all__ = ["PROTOCOL", "Section", "benchmark_refs", "dataset_sections", "evaluate_sections", "flat_report",
+           "grid_source", "protocol_sections"]
 
 PROTOCOL = 2  # metrics.json without a "protocol" key: version 1 (training demonstrations as problems)
 PROGRESS_S = 10.0  # seconds between progress lines of an evaluation when stderr is not a terminal
@@ -45,7 +45,7 @@ class Section:
     grids: object
     source: str
     reconstruction: object = None
-    benchmark: str | None = None  # the benchmark's name (`unseen`) when the section is one
+    benchmark: str | None = None  # a benchmark's section: its dataset's `name@id` (metrics.json's "benchmarks")
     all_hard: bool = False  # every problem was drawn to need a detour: no hard subset of its own
 
 
@@ -66,14 +66,14 @@ def grid_source(cfg, ds, robot):
     return source, source
 
 
-def dataset_sections(ds, splits: list[str], count: int | None, seed: int, cfg, robot, name: str | None = None,
-                     benchmark: str | None = None):
+def dataset_sections(ds, splits: list[str], count: int | None, seed: int, cfg, robot, name: str | None = None):
     """One `Section` per split of `ds` ("train" | "val" | "test"), from its stored evaluation problems;
-    `name` renames a single section (a benchmark's, `benchmark` its name)."""
+    `name` renames a single section: a benchmark's, whose `ds` is the benchmark's dataset."""
     from samp.eval.benchmark import detour_only
     from samp.eval.problems import problems_from_dataset
 
     sections = []
+    benchmark = f"{ds.name}@{ds.id}" if name else None
     all_hard = benchmark is not None and detour_only(ds)
     for split in splits:
         label = name or split
@@ -90,18 +90,14 @@ def dataset_sections(ds, splits: list[str], count: int | None, seed: int, cfg, r
 
 
 def protocol_sections(cfg, ds, benches, robot, trained=None):
-    """The sections `cfg` asks for: the dataset's splits, then each benchmark (`samp.eval.benchmark.Benchmark`,
-    a list of them, or None); test and benchmark sections are checked against the scenes of `trained` (the
-    dataset a run trained on)."""
-    from samp.eval.benchmark import BENCHMARK_PREFIX, HEADLINE, Benchmark, check_unseen, trained_scene_hashes
+    """The sections `cfg` asks for: the dataset's splits, then each benchmark (`samp.eval.benchmark.Benchmark`s,
+    `open_benchmarks`); test and benchmark sections are checked against the scenes of `trained` (the dataset
+    a run trained on)."""
+    from samp.eval.benchmark import check_unseen, trained_scene_hashes
 
     sections = dataset_sections(ds, cfg.splits, cfg.problems, cfg.seed, cfg, robot) if ds is not None else []
-    if benches is not None and not isinstance(benches, (list, tuple)):  # one benchmark, or its dataset alone
-        benches = [benches if isinstance(benches, Benchmark) else
-                   Benchmark(HEADLINE, benches.name.removeprefix(BENCHMARK_PREFIX), benches)]
-    for b in benches or []:
-        sections += dataset_sections(b.dataset, ["test"], cfg.benchmark_problems, cfg.seed, cfg, robot,
-                                     name=b.section, benchmark=b.name)
+    for b in benches:
+        sections += dataset_sections(b.dataset, ["test"], cfg.benchmark_problems, cfg.seed, cfg, robot, name=b.section)
     if trained is not None:
         check_unseen(sections, trained_scene_hashes(trained), f"{trained.name}@{trained.id}")
     return sections
@@ -118,7 +114,7 @@ def _group_rows(section: Section, hard: list[bool]) -> dict[str, list[int]]:
     rows = {section.name: list(range(len(section.problems)))}
     if not section.all_hard:
         rows[section.name + HARD] = [i for i, h in enumerate(hard) if h]
-    if section.benchmark is not None or section.name == "benchmark":
+    if section.benchmark is not None:
         for i, p in enumerate(section.problems):
             rows.setdefault(f"{section.name}_{p.scene.meta.get('generator', 'unknown')}", []).append(i)
     return rows
@@ -159,16 +155,18 @@ def _evaluate_section(planner, section: Section, cfg, expert) -> dict:
 
 
 def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_path: Path | None = None,
-                      dataset: str | None = None, benchmark: str | None = None, provenance=None,
-                      benchmarks: dict[str, str] | None = None) -> dict:
+                      dataset: str | None = None, provenance=None) -> dict:
     """Evaluate `planner` (and the expert and the straight line) on every section, write the files into
     `out` (which must exist) and return the report (the content of metrics.json). `provenance`: a
     `samp.eval.binding.Provenance` (a run's checkpoint evaluated from its folder): its record goes into
     metrics.json and what it qualifies (another dataset, an unverified checkpoint) under the report's title.
-    `benchmark`: the headline benchmark's `name@id`; `benchmarks`: {section: `name@id`} of every benchmark."""
+    The report names each benchmark section's dataset (`benchmarks`: {section: `name@id`}) and the
+    headline's alone as `benchmark`, from the sections."""
+    from samp.eval.benchmark import HEADLINE
     from samp.eval.loading import load_planner
     from samp.eval.metrics import summarize
 
+    benchmarks = {s.name: s.benchmark for s in sections if s.benchmark}
     if not sections:
         raise ValueError("nothing to evaluate: no sections (give splits=[train,val] and/or benchmark=NAME)")
     expert = load_planner("expert")
@@ -193,14 +191,19 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
         if section.reconstruction is not None:
             print("  " + section.reconstruction.summary())
     report = {"protocol": PROTOCOL, "planner": planner.name, "run": str(run_path) if run_path else None,
-              "dataset": dataset, "benchmark": benchmark,
-              "benchmarks": benchmarks or ({"benchmark": benchmark} if benchmark else {}),
+              "dataset": dataset, "benchmark": benchmarks.get(HEADLINE), "benchmarks": benchmarks,
               "groups": groups, "metrics": blocks[planner.name],
               **{other: blocks.get(other) if planner.name != other else None for other in ("expert", "straight")}}
     if provenance is not None:
         report.update(provenance.record())
     heading = provenance.heading() if provenance is not None else ""
     return _write(out, cfg, report, planner, problems, records, results_all, sections, heading)
+
+
+def benchmark_refs(report: dict) -> dict[str, str]:
+    """{section: `name@id`} of the benchmarks a report (metrics.json) was evaluated on; one written before
+    several benchmarks names its one as `benchmark`."""
+    return report.get("benchmarks") or ({"benchmark": report["benchmark"]} if report.get("benchmark") else {})
 
 
 def flat_report(report: dict, name: str) -> dict[str, float]:

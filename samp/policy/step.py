@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 
+from samp.policy.interface import clamp_to_limits
 from samp.policy.network import denormalize
 from samp.policy.plan import Plannable
 
@@ -64,6 +65,4 @@ class SAMPStepPolicy(Plannable):
                 q_next = denormalize(u, self.system.limits)
             if self.stride == 1.0:
                 return q_next
-            from samp.policy.interface import clamp_to_limits
-
             return clamp_to_limits(self.robot, q + self.stride * (q_next - q))

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from samp.eval.metrics import wilson_interval
+from samp.eval.report import benchmark_refs
 from samp.names import EVAL_DIR, PLOTS_DIR, PROBLEMS_JSONL, TRAIN_PREFIX, VAL_PREFIX
 from samp.runs.plots import save_figure
 from samp.runs.registry import Run
@@ -151,8 +152,7 @@ def _scene_of(run: Run, record: dict):
     from samp.data import open_dataset
 
     report = run.evaluation or {}
-    benchmarks = report.get("benchmarks") or {"benchmark": report.get("benchmark")}
-    ref = benchmarks[record["group"]] if record["group"] in benchmarks else report.get("dataset")
+    ref = benchmark_refs(report).get(record["group"]) or report.get("dataset")
     if ref is None:
         raise ValueError(f"{run.path}'s evaluation names no dataset for its {record['group']!r} problems "
                          "(eval/metrics.json): there is no anchor grid to draw")

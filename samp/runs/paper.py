@@ -27,8 +27,9 @@ from pathlib import Path
 from typing import NamedTuple
 
 from samp.eval.metrics import metric
-from samp.runs.protocol import (BENCHMARK, BENCHMARK_REF, CURRENT, HARD_BENCHMARK, SOLUTION_TIME_B1, STEP_TIME_B1,
-                                hard, interval_keys, protocol_of)
+from samp.eval.report import benchmark_refs
+from samp.runs.protocol import (BENCHMARK, CURRENT, HARD_BENCHMARK, SOLUTION_TIME_B1, STEP_TIME_B1, hard, interval_keys,
+                                protocol_of)
 from samp.runs.registry import Run
 from samp.runs.tables import DASH, fmt, percent
 
@@ -168,8 +169,7 @@ def _pair(block: dict, key: str, scale: float = 1.0, digits: int = 3) -> str:
 
 def _title(name: str, filled: list[_Evaluation]) -> str:
     """The table's name, the benchmark(s) and the datasets of its rows' runs."""
-    benchmarks = sorted({str(ref) for e in filled if e.protocol >= CURRENT
-                         for ref in ((e.report.get("benchmarks") or {}).values() or [e.report.get(BENCHMARK_REF)])})
+    benchmarks = sorted({ref for e in filled if e.protocol >= CURRENT for ref in benchmark_refs(e.report).values()})
     datasets = sorted({str(e.report.get("dataset")) for e in filled})
     return (f"{name}, on the standing benchmark of unseen scenes (benchmark {', '.join(benchmarks) or DASH}; "
             f"datasets {', '.join(datasets) or DASH})")

@@ -8,8 +8,9 @@ evaluation problems in the dataset's validation scenes), "train" (new problems i
 "benchmark" (the standing benchmark of unseen scenes, which the paper's tables report), "hard" (the hard
 benchmark, `bench_hard`: every problem drawn to need a detour), their hard subsets ("<group>_hard": the
 straight joint-space line collides; "hard" has none, all of it is) and the benchmarks per generator
-("benchmark_tabletop", "hard_shelf", ...); "benchmarks" maps each benchmark section to its `name@id`. Every rate has its Wilson 95 % interval beside it (`<rate>_ci_low`,
-`<rate>_ci_high`), and the timings are one problem at a time (B = 1) apart from the batched throughput.
+("benchmark_tabletop", "hard_shelf", ...); "benchmarks" maps each benchmark section to its `name@id`. Every
+rate has its Wilson 95 % interval beside it (`<rate>_ci_low`, `<rate>_ci_high`), and the timings are one
+problem at a time (B = 1) apart from the batched throughput.
 
 Protocol 1 (no "protocol" key; runs evaluated before): problems drawn from the dataset's demonstration
 trajectories, per scene split "train" / "heldout" (and "all" pooled), with the held-out scenes also
@@ -24,8 +25,9 @@ from samp.eval.metrics import metric, metric_keys, wilson_interval
 from samp.eval.report import PROTOCOL as EVALUATION_PROTOCOL
 from samp.names import EVAL_PREFIX
 
-__all__ = ["BENCHMARK", "BENCHMARK_REF", "HARD_BENCHMARK", "BLOCKS", "CURRENT", "GROUPS", "PROTOCOL", "SOLUTION_TIME_B1", "STEP_TIME_B1",
-           "THROUGHPUT", "eval_key", "hard", "interval_keys", "is_rate", "label", "pooled_interval", "protocol_of"]
+__all__ = ["BENCHMARK", "BENCHMARK_REF", "BLOCKS", "CURRENT", "GROUPS", "HARD_BENCHMARK", "PROTOCOL", "SOLUTION_TIME_B1",
+           "STEP_TIME_B1", "THROUGHPUT", "eval_key", "hard", "interval_keys", "is_rate", "label", "pooled_interval",
+           "protocol_of"]
 
 CURRENT = EVALUATION_PROTOCOL  # what `samp.eval.report` writes now
 PROTOCOL = "protocol"  # eval/metrics.json's field, and the run key it becomes (`ls protocol=2`)

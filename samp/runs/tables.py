@@ -15,7 +15,8 @@ import math
 import sys
 from pathlib import Path
 
-from samp.runs.protocol import BENCHMARK, BENCHMARK_REF, BLOCKS, HARD_BENCHMARK, PROTOCOL, eval_key, interval_keys, label
+from samp.eval.report import benchmark_refs
+from samp.runs.protocol import BENCHMARK, BLOCKS, HARD_BENCHMARK, PROTOCOL, eval_key, interval_keys, label
 from samp.runs.registry import Run, check_key, pooled, varying_keys
 from samp.tracking import tracked_at
 
@@ -216,8 +217,7 @@ def compare_table(runs: list[Run], metrics: list[str] | None = None) -> tuple[li
 def show_text(run: Run) -> str:
     """A run's record as text: status and times, lineage, overrides, metrics and files."""
     rec, code = run.record, run.record.get("code_version") or {}
-    bench = (run.evaluation or {}).get(BENCHMARK_REF)
-    benches = (run.evaluation or {}).get("benchmarks") or ({BENCHMARK: bench} if bench else {})
+    benches = benchmark_refs(run.evaluation or {})
     lines = [f"run        {run.path}", f"status     {run.status}" + (f"  ({rec['error']})" if rec.get("error") else ""),
              f"experiment {rec.get('experiment')}   seed {rec.get('seed')}   robot {run.robot}",
              f"started    {rec.get('start')}   ended {rec.get('end')}   starts {len(rec.get('starts') or [])}",

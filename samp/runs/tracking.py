@@ -17,7 +17,9 @@ import json
 import os
 from pathlib import Path
 
-from samp.tracking import client, experiment_id, log_dataset, log_files, resolve_uri, tracked_at
+from samp.eval.report import benchmark_refs
+from samp.tracking import (benchmark_tags, client, experiment_id, log_dataset, log_files, resolve_uri,
+                           tracked_at)
 
 __all__ = ["finish_training", "sweep_parent", "training_logger"]
 
@@ -101,11 +103,8 @@ def finish_training(logger, record: dict, run_dir: Path) -> None:
     mlflow_client, run_id = logger.experiment, logger.run_id
     report = Path(run_dir) / EVAL_DIR / METRICS_JSON
     written = json.loads(report.read_text()) if report.is_file() else {}
-    benchmarks = written.get("benchmarks") or {"benchmark": written.get("benchmark")}
-    for section, ref in benchmarks.items():  # samp.benchmark_id, samp.hard_benchmark_id, ...
-        if ref:
-            key = "benchmark_id" if section == "benchmark" else f"{section}_benchmark_id"
-            mlflow_client.set_tag(run_id, f"samp.{key}", ref)
+    for key, ref in benchmark_tags(benchmark_refs(written)).items():  # samp.benchmark_id, samp.hard_benchmark_id
+        mlflow_client.set_tag(run_id, f"samp.{key}", ref)
     config = record.get("config") or {}
     log_dataset(mlflow_client, run_id, record.get("dataset_id"), (config.get("paths") or {}).get("datasets_dir"),
                 "training")

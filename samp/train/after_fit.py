@@ -46,8 +46,7 @@ def evaluate_policy(system, datamodule, run_dir: Path, evaluation) -> dict:
     # the model just fitted, in memory: tied to its dataset by construction (its binding), nothing to verify
     provenance = Provenance(system.dataset_id, f"{ds.name}@{ds.id}")
     report = evaluate_sections(planner, sections, cfg, out, run_path=Path(run_dir), dataset=f"{ds.name}@{ds.id}",
-                               benchmark=benches[0].ref if benches else None,
-                               benchmarks={b.section: b.ref for b in benches}, provenance=provenance)
+                               provenance=provenance)
     try:  # a page of curves and rates beside the tables; a plotting failure must not lose the run
         from samp.runs.plots import plot_run_summary
         from samp.runs.registry import load_run

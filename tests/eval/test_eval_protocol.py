@@ -49,13 +49,14 @@ class Line:
 
 @pytest.fixture(scope="module")
 def report(datasets, panda, tmp_path_factory):
+    from samp.eval.benchmark import Benchmark
     from samp.eval.report import evaluate_sections, protocol_sections
 
     ds, bench = datasets
     cfg = _config()
-    sections = protocol_sections(cfg, ds, bench, panda, trained=ds)
+    sections = protocol_sections(cfg, ds, [Benchmark("benchmark", bench)], panda, trained=ds)
     out = tmp_path_factory.mktemp("out")
-    evaluate_sections(Line(panda), sections, cfg, out, dataset=f"{ds.name}@{ds.id}", benchmark=f"{bench.name}@{bench.id}")
+    evaluate_sections(Line(panda), sections, cfg, out, dataset=f"{ds.name}@{ds.id}")
     return json.loads((out / "metrics.json").read_text()), [json.loads(x) for x in open(out / "problems.jsonl")]
 
 
@@ -105,12 +106,13 @@ def test_every_rate_has_its_interval_and_times_are_per_problem(report):
 
 def test_a_benchmark_scene_the_run_trained_on_is_refused(datasets, panda):
     """A dataset evaluated as its own 'benchmark': its scenes are the training ones, by content hash."""
+    from samp.eval.benchmark import Benchmark
     from samp.eval.report import protocol_sections
 
     ds, bench = datasets
     with pytest.raises(ValueError, match="trained or validated on.*cannot be reported as unseen"):
-        protocol_sections(_config(splits=[]), None, ds_as_test(ds), panda, trained=ds)
-    protocol_sections(_config(splits=[]), None, bench, panda, trained=ds)  # unseen scenes pass
+        protocol_sections(_config(splits=[]), None, [Benchmark("benchmark", ds_as_test(ds))], panda, trained=ds)
+    protocol_sections(_config(splits=[]), None, [Benchmark("benchmark", bench)], panda, trained=ds)  # unseen pass
     assert not set(bench.scene_hashes) & set(ds.scene_hashes)
 
 
@@ -146,7 +148,7 @@ def test_a_second_benchmark_drawn_all_hard_is_its_own_section(datasets, panda, t
     ds, bench = datasets
     hard = _drawn_hard(bench)
     cfg = _config(splits=[])
-    sections = protocol_sections(cfg, None, [Benchmark("benchmark", "b", bench), Benchmark("hard", "h", hard)], panda,
+    sections = protocol_sections(cfg, None, [Benchmark("benchmark", bench), Benchmark("hard", hard)], panda,
                                  trained=ds)
     assert [s.name for s in sections] == ["benchmark", "hard"]
     assert len(sections[0].problems) == len([p for p in bench.eval_problems if p["goal"] is not None])
@@ -154,14 +156,14 @@ def test_a_second_benchmark_drawn_all_hard_is_its_own_section(datasets, panda, t
               if p.get("detour") is True and p["goal"] is not None}
     got = {(p.scene_index, tuple(np.round(p.q_goal, 9))) for p in sections[1].problems}
     assert got == wanted and len(got) < len(sections[0].problems)
-    report = evaluate_sections(Line(panda), sections, cfg, tmp_path, benchmark=f"{bench.name}@{bench.id}",
-                               benchmarks={"benchmark": f"{bench.name}@{bench.id}", "hard": f"{hard.name}@{hard.id}"})
+    report = evaluate_sections(Line(panda), sections, cfg, tmp_path)
     groups = {g: v["problems"] for g, v in report["groups"].items()}
     assert groups["hard"] == len(wanted) and "hard_hard" not in groups and "benchmark_hard" in groups
     assert groups["hard_tabletop"] + groups["hard_shelf"] == len(wanted)
-    assert report["benchmarks"]["hard"] == f"{hard.name}@{hard.id}"
+    assert report["benchmarks"] == {"benchmark": f"{bench.name}@{bench.id}", "hard": f"{hard.name}@{hard.id}"}
+    assert report["benchmark"] == f"{bench.name}@{bench.id}"
     with pytest.raises(ValueError, match="cannot be reported as unseen"):
-        protocol_sections(cfg, None, [Benchmark("benchmark", "b", bench), Benchmark("hard", "h", ds_as_test(ds))],
+        protocol_sections(cfg, None, [Benchmark("benchmark", bench), Benchmark("hard", ds_as_test(ds))],
                           panda, trained=ds)
 
 

@@ -109,7 +109,7 @@ def _dataset(splits: list[str]):
 
 def _section(name: str, hashes: list[str]):
     problems = [SimpleNamespace(scene_hash=h, scene=SimpleNamespace(name=f"scene_{h}")) for h in hashes]
-    return SimpleNamespace(name=name, problems=problems)
+    return SimpleNamespace(name=name, problems=problems, benchmark="bench@0" if name == "benchmark" else None)
 
 
 @pytest.mark.parametrize("split", ["train", "val"])

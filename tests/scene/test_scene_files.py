@@ -124,6 +124,6 @@ def test_the_benchmark_overlap_check_sees_file_scenes(mesh_scene):
 
     scene = load_scene_file(mesh_scene)
     problem = SimpleNamespace(scene=scene, scene_hash=scene.content_hash())
-    sections = [SimpleNamespace(name="benchmark", problems=[problem])]
+    sections = [SimpleNamespace(name="benchmark", problems=[problem], benchmark="bench_x@0")]  # a benchmark Section
     with pytest.raises(ValueError, match="cell"):
         check_unseen(sections, {scene.content_hash()}, "mine@abc")

@@ -66,7 +66,7 @@ class EvalConfig:
     # samp policies: samp+check with this many candidate rollouts per problem, or {candidates: 8, noisy: 4, ...}
     # (samp.policy.checked.CheckConfig; noisy: the policy's own rollouts with noise on its steps); null: plain
     check: Any = None
-    stride: float | None = None  # samp policies: each step moves this many times the predicted step (null: 1, as trained)
+    stride: float | None = None  # samp policies: each step moves up to this many times the predicted step (null: 1, as trained)
     grid_source: str = "exact"  # exact (the dataset's grids) | reconstructed (from simulated depth cameras)
     camera: str = "default"  # grid_source=reconstructed: camera set, conf/camera/NAME.yaml or a YAML path
     unknown: str = "free"  # grid_source=reconstructed: what space no camera saw becomes: free | occupied

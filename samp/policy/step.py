@@ -22,8 +22,10 @@ class SAMPStepPolicy(Plannable):
     robot_sdf_pairs=near); None (the default) does so wherever it is allowed, False keeps the torch path. The
     two agree to float32 rounding.
 
-    `stride`: each step moves `stride` times the network's predicted step (clamped to the joint limits): fewer
-    steps, so less time per problem, at a cost in success that the evaluation measures (1: as trained).
+    `stride`: each step moves up to `stride` times the network's predicted step (clamped to the joint limits):
+    fewer steps, so less time per problem, at a cost in success that the evaluation measures (1: as trained).
+    Near the goal the stride shrinks, to no more than half the joint-space distance left and no less than the
+    predicted step: a fixed stride overshoots a goal closer than the stretched step and oscillates about it.
     """
 
     def __init__(self, system, name: str = "samp", compiled: bool | None = None, stride: float = 1.0):
@@ -65,4 +67,11 @@ class SAMPStepPolicy(Plannable):
                 q_next = denormalize(u, self.system.limits)
             if self.stride == 1.0:
                 return q_next
-            return clamp_to_limits(self.robot, q + self.stride * (q_next - q))
+            return clamp_to_limits(self.robot, q + self.scale(q, q_goal, q_next) * (q_next - q))
+
+    def scale(self, q: torch.Tensor, q_goal: torch.Tensor, q_next: torch.Tensor) -> torch.Tensor:
+        """(B, 1) how many predicted steps each row moves: `stride`, but no more than half the joint-space
+        distance left to the goal and no less than one step (a stride below 1 is taken as it is)."""
+        step = torch.linalg.vector_norm(q_next - q, dim=1, keepdim=True).clamp_min(1e-12)
+        room = 0.5 * torch.linalg.vector_norm(q_goal - q, dim=1, keepdim=True)
+        return (room / step).clamp(max=self.stride).clamp(min=min(1.0, self.stride))

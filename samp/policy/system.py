@@ -155,7 +155,7 @@ class PolicySystem(PolicySystemBase, kind="samp"):
         compiled call on a CPU (`SAMPStepPolicy`; None: wherever the system allows it, False: the torch path).
         `check`: a number of candidates, or `CheckConfig` fields, gives the checked planner instead
         (`samp.policy.checked.CheckedPolicy`, "samp+check", a `TrajectoryPlanner`). `stride`: each step moves
-        that many times the predicted step (`SAMPStepPolicy`)."""
+        up to that many times the predicted step, less near the goal (`SAMPStepPolicy`)."""
         from samp.policy.step import SAMPStepPolicy
 
         if options:

@@ -5,6 +5,9 @@ dummy systems elsewhere cannot catch a step that drifts from the trained network
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import numpy as np
 import pytest
 import torch
 
@@ -89,21 +92,75 @@ def test_other_bounds_and_another_n_e_are_refused(trained):
 
 
 def test_a_stride_scales_the_predicted_step(trained):
-    """`stride=s` moves s times the network's predicted step, clamped to the joint limits (the oracle: the plain
-    step of the same policy); a stride that is no number in (0, 4] is refused, and samp+check refuses one."""
+    """`stride=s` moves s times the network's predicted step far from the goal, and near it no more than half
+    the joint-space distance left but never less than the plain step, clamped to the joint limits (the oracle:
+    the plain step of the same policy, scaled in numpy); a stride that is no number in (0, 4] is refused, and
+    samp+check refuses one."""
     from samp.policy import load_policy
     from samp.policy.interface import clamp_to_limits
 
     dm, system, path = trained
     env, b = _env(dm)
-    plain, long = load_policy(path, compiled=False), load_policy(path, compiled=False, stride=2.0)
+    plain = load_policy(path, compiled=False)
     plain.reset(env)
-    long.reset(env)
-    step = plain.step(b["q"], b["q_goal"], env)
-    want = clamp_to_limits(plain.robot, b["q"] + 2.0 * (step - b["q"]))
-    assert torch.allclose(long.step(b["q"], b["q_goal"], env), want, atol=1e-6)
+    q = b["q"].double().numpy()
+    for stride in (2.0, 0.5):
+        long = load_policy(path, compiled=False, stride=stride)
+        long.reset(env)
+        for goal in (b["q_goal"], b["q"] + 0.01 * (b["q_goal"] - b["q"])):  # as stored, and right beside q
+            step = (plain.step(b["q"], goal, env) - b["q"]).double().numpy()
+            room = 0.5 * np.linalg.norm(goal.double().numpy() - q, axis=1) / np.linalg.norm(step, axis=1)
+            scale = np.full(len(q), stride) if stride < 1 else np.clip(room, 1.0, stride)
+            if stride > 1:  # far from the goal the whole stride, beside it the plain step: both cases are tested
+                assert (scale == stride).any() if goal is b["q_goal"] else (scale == 1.0).all()
+            want = clamp_to_limits(plain.robot, torch.from_numpy(q + scale[:, None] * step).float())
+            assert torch.allclose(long.step(b["q"], goal, env), want, atol=1e-5)
+    near = b["q"] + 0.01 * (b["q_goal"] - b["q"])
+    assert torch.allclose(load_policy(path, compiled=False, stride=3.0).step(b["q"], near, env),
+                          plain.step(b["q"], near, env), atol=1e-6)  # beside the goal: the trained step
     for bad in (0, -1.0, 5.0, "2"):
         with pytest.raises(ValueError, match="stride"):
             load_policy(path, stride=bad)
     with pytest.raises(ValueError, match="stride applies to the plain policy"):
         load_policy(path, stride=2.0, check=4)
+
+
+def test_dagger_plans_from_the_states_the_policy_visits(trained, tmp_path):
+    """`tools/dagger.py` writes the dataset's own demonstrations unchanged, then one expert plan per failed
+    rollout (and, with --clean-share 1, per clean one) that starts where the policy went and ends at that
+    problem's goal, collision-free by the independent pybullet check; a second run writes the same file, and an
+    existing file is never overwritten."""
+    import sys
+
+    from samp.eval.checks import TrajectoryChecker
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
+    try:
+        import dagger
+    finally:
+        sys.path.pop(0)
+    dm, system, path = trained
+    args = ["--run", str(path), "--dataset", str(dm.ds.path), "--per-scene", "3", "--clean-share", "1"]
+    assert dagger.main([*args, "--out", str(tmp_path / "a.npz")]) == 0
+    assert dagger.main([*args, "--out", str(tmp_path / "b.npz")]) == 0
+    a, b = np.load(tmp_path / "a.npz"), np.load(tmp_path / "b.npz")
+    assert all(np.array_equal(a[k], b[k]) for k in a.files)
+    with pytest.raises(SystemExit):
+        dagger.main([*args, "--out", str(tmp_path / "a.npz")])
+    ends = a["episode_ends"]
+    trajectories = np.split(a["joint_positions"], ends[:-1])
+    own = dm.ds.trajectories.numpy()
+    assert len(trajectories) > len(own)  # three rollouts of a barely trained policy give at least one plan
+    assert all(np.array_equal(t, o) for t, o in zip(trajectories, own))
+    assert a["episode_scene"][:len(own)].tolist() == dm.ds.traj_scene.tolist()
+    train = dm.ds.scene_indices("train")
+    goals = {tuple(own[k][-1]) for k in np.flatnonzero(np.isin(dm.ds.traj_scene.numpy(), train))}
+    new = trajectories[len(own):]
+    assert set(a["episode_scene"][len(own):].tolist()) <= set(train)
+    starts = {tuple(own[k][0]) for k in range(len(own))}
+    for t in new:
+        assert tuple(t[-1]) in goals
+        assert tuple(t[0]) not in starts  # from a visited state, not a stored start
+    with TrajectoryChecker(system.robot) as checker:
+        assert not any(c["collision"] for c in checker.check(dm.ds.scenes[train[0]], new))
+    assert a["scenes"].tolist() == [f"{s['generator']}:{s['seed']}" for s in dm.ds.manifest["scenes"]]

@@ -5,7 +5,7 @@ problem at a time. The policy's per-problem solution time (B = 1) against the ex
 afresh with OMPL in the same run, on --expert-problems of them.
 
 Adds --problems (also read by the perception suite), --n-e (also read by the baselines suite), --expert-problems,
---policy-run (also read by the policy suite) and --benchmark."""
+--policy-run (also read by the policy suite), --benchmark and --stride."""
 
 from __future__ import annotations
 
@@ -26,6 +26,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--policy-run", help="eval: a trained policy's run folder (default: the straight-line policy)")
     ap.add_argument("--benchmark", help="eval: take the problems from this standing benchmark (e.g. unseen; built "
                     "when missing) instead of two generated scenes")
+    ap.add_argument("--stride", type=float, default=1.0, help="eval: the --policy-run policy's stride (up to this many "
+                    "times each predicted step; 1: as trained)")
 
 
 def _load_policy(args, device: torch.device):
@@ -36,12 +38,17 @@ def _load_policy(args, device: torch.device):
     if args.policy_run:
         from samp.eval import load_planner
 
-        policy = load_planner(args.policy_run)
+        policy = load_planner(args.policy_run, **_stride(args))
         if hasattr(policy, "system"):
             policy.system.to(device)
         args.n_e = policy.n_e
         return policy
     return StraightLinePolicy(load_robot(args.robot, dtype=torch.float32).to(device), n_e=args.n_e)
+
+
+def _stride(args) -> dict:
+    """The planner option of --stride (none at 1, so that policies without strides load as before)."""
+    return {} if args.stride == 1.0 else {"stride": args.stride}
 
 
 def _median_time(fn: Callable, repeats: int) -> tuple[float, object]:
@@ -139,7 +146,7 @@ def run(args) -> tuple[dict, list[list]]:
     if getattr(policy, "compiled", False):  # a SAMP policy whose default step is compiled: its torch path too
         from samp.eval import load_planner
 
-        plain = load_planner(args.policy_run, compiled=False)
+        plain = load_planner(args.policy_run, compiled=False, **_stride(args))
         plain.system.to(device)
         times = [r.solution_time for r in rollout(plain, subset, single_cfg, source)]
         mine = metrics["solution/policy_single_s"]

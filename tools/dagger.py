@@ -84,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     from samp.eval.rollouts import rollout
     from samp.expert.planner import derive_seed, make_planner
     from samp.policy.registry import load_system
+    from samp.robot import load_robot
 
     torch.set_num_threads(1)
     system = load_system(Path(args.run))
@@ -104,12 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"rolled out {len(problems)} problems of {len(ds.scene_indices('train'))} training scenes in "
           f"{time.perf_counter() - t0:.0f} s")
 
-    robot = ds.manifest["robot"]["name"]
-    from samp.robot import load_robot
-
-    robot = load_robot(robot, dtype=torch.float64)
+    robot = load_robot(ds.manifest["robot"]["name"], dtype=torch.float64)
     expert = ds.manifest["config"]["expert_config"]
-    new_q, new_scene, counts = [], [], {"collided": 0, "short": 0, "clean": 0, "planned": 0, "refused": 0}
+    new_q, new_scene, counts = [], [], {"collided": 0, "short": 0, "clean": 0, "planned": 0, "unplanned": 0}
     by_scene: dict[int, list[int]] = {}
     for j, p in enumerate(problems):
         by_scene.setdefault(p.scene_index, []).append(j)
@@ -130,10 +128,10 @@ def main(argv: list[str] | None = None) -> int:
                             counts["planned"] += 1
                             break
                     else:
-                        counts["refused"] += kind != "clean"
+                        counts["unplanned"] += kind != "clean"
                     bar.update()
     print(f"rollouts: {counts['collided']} collided, {counts['short']} stopped short, {counts['clean']} clean; "
-          f"{counts['planned']} expert plans from visited states; {counts['refused']} failed rollouts without one")
+          f"{counts['planned']} expert plans from visited states; {counts['unplanned']} failed rollouts without one")
 
     own_q = [t.numpy() for t in ds.trajectories]
     own_scene = ds.traj_scene.tolist()

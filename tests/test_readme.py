@@ -246,8 +246,10 @@ STEPS: list[tuple[str, object]] = [
      Same("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=unseen out=/tmp/bench",
           "another benchmark spec by name (tests/data/test_data_detours.py checks bench_hard's spec, "
           "tests/eval/test_eval_protocol.py its all-hard section)")),
-    ("python tools/dagger.py --run runs/samp_cpu/TIME --out dagger.npz",
-     RunElsewhere("policy/test_samp_rollout.py", '"--per-scene", "3", "--clean-share", "1"')),
+    ("python -m samp.train experiment=quickstart dagger.rounds=1",
+     RunElsewhere("train/test_dagger_stage.py", '"dagger.rounds=1", "dagger.per_scene=3"')),
+    ("python -m samp.train experiment=samp_cpu dagger.teacher=runs/samp_cpu/TIME",
+     RunElsewhere("train/test_dagger_stage.py", 'f"dagger.teacher={staged[\'teacher\']}"')),
     ("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=hard stride=2 out=/tmp/stride2",
      Run(f"python -m samp.eval run={{run}} stride=2 out={{tmp}}/stride2 {EVAL}", ["stride2/metrics.json"])),
     ("python -m samp.eval run=runs/EXP/TIME check=8 out=/tmp/check",

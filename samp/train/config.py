@@ -39,6 +39,7 @@ class TrainSchema:
     paths: Any = None
     robot: Any = None
     build_missing: Any = None
+    dagger: Any = None
     evaluation: Any = None
     tracking: Any = None
     run_dir: Any = None

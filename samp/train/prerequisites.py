@@ -1,7 +1,8 @@
 """What a training needs before its system and DataModule exist: a robot SDF given by experiment name is
 turned into the path of its run, a missing dataset or robot SDF is built when the config asks
-(`build_missing.dataset`, `build_missing.robot_sdf`), and a dataset the evaluation after training could
-not use is refused before training. Steps of the recipe, never of a LightningModule.
+(`build_missing.dataset`, `build_missing.robot_sdf`), DAgger rounds run (`dagger.rounds`, samp/train/dagger.py),
+and a dataset the evaluation after training could not use is refused before training. Steps of the recipe,
+never of a LightningModule.
 """
 
 from __future__ import annotations
@@ -174,9 +175,10 @@ def _check_evaluable(cfg) -> None:
                          "or set evaluation.problems=0")
 
 
-def prepare(cfg) -> None:
-    """Resolve and build what `cfg` (the composed training config, writable) needs; rewrites
-    `cfg.system.robot_sdf` to a path. Call on rank 0 before instantiating the system."""
+def prepare(cfg, overrides: list[str] | None = None) -> None:
+    """Resolve and build what `cfg` (the composed training config, writable, composed from `overrides`)
+    needs; rewrites `cfg.system.robot_sdf` to a path, and with `dagger.rounds` > 0 `cfg.datamodule.dataset`
+    to the aggregated dataset (`samp.train.dagger`). Call on rank 0 before instantiating the system."""
     if cfg.datamodule.get("dataset") is not None:
         if cfg.build_missing.dataset:
             _dataset(cfg)
@@ -184,3 +186,7 @@ def prepare(cfg) -> None:
             _check_evaluable(cfg)
     if cfg.system.get("robot_sdf"):
         cfg.system.robot_sdf = _robot_sdf(cfg)
+    if cfg.datamodule.get("dataset") is not None and (cfg.get("dagger") or {}).get("rounds"):
+        from samp.train.dagger import stage
+
+        stage(cfg, list(overrides or []))  # imports the aggregated dataset, with its evaluation problems

@@ -132,7 +132,7 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
             cfg.resume = str(resume)
         cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
         cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
-        prepare(cfg)  # before this run's folder exists: a robot SDF built here is a run of its own
+        prepare(cfg, overrides)  # before this run's folder exists: a robot SDF or DAgger teacher built here is a run of its own
     folder, ckpt = _open_folder(cfg)
     with open_dict(cfg):
         cfg.run_dir = str(folder.path)

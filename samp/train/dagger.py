@@ -39,13 +39,14 @@ _TEACHER_DROPS = ("name", "resume", "run_dir", "trust_checkpoint", "dagger.round
 _SUFFIX = re.compile(r"_dagger_[0-9a-f]{8}$")
 
 
-def rollout_problems(ds, per_scene: int, rng: np.random.Generator):
-    """`per_scene` (start, goal) pairs of each training scene's stored demonstrations, as `Problem`s."""
+def rollout_problems(ds, per_scene: int, rng: np.random.Generator, scenes: list[int] | None = None):
+    """`per_scene` (start, goal) pairs of the stored demonstrations of each training scene (of `scenes`, the
+    teacher's; None: all), as `Problem`s."""
     from samp.eval.problems import Problem
 
     problems = []
     robot = ds.manifest["robot"]["name"]
-    for i in ds.scene_indices("train"):
+    for i in ds.scene_indices("train") if scenes is None else scenes:
         rows = np.flatnonzero(ds.traj_scene.numpy() == i)
         for k in sorted(rng.choice(rows, size=min(per_scene, len(rows)), replace=False).tolist()):
             q = ds.trajectories[k].numpy()
@@ -82,9 +83,11 @@ def scene_refs(ds) -> list[str]:
     return [f"{s['generator']}:{s['seed']}" for s in infos]
 
 
-def collect(system, ds, per_scene: int, back: int, clean_share: float, seed: int, progress: bool = True):
-    """Roll `system`'s policy out in the training scenes of `ds` and let the dataset's expert plan from the
-    states it visits -> (trajectories, their scene indices, counts). Deterministic for a given `seed`."""
+def collect(system, ds, per_scene: int, back: int, clean_share: float, seed: int, scenes: list[int] | None = None,
+            progress: bool = True):
+    """Roll `system`'s policy out in the training scenes of `ds` (those of `scenes`; None: all) and let the
+    dataset's expert plan from the states it visits -> (trajectories, their scene indices, counts).
+    Deterministic for a given `seed`."""
     import torch
     from tqdm import tqdm
 
@@ -96,10 +99,10 @@ def collect(system, ds, per_scene: int, back: int, clean_share: float, seed: int
     from samp.robot import load_robot
 
     rng = np.random.default_rng(seed)
-    problems = rollout_problems(ds, per_scene, rng)
+    problems = rollout_problems(ds, per_scene, rng, scenes)
     t0 = time.perf_counter()
     results = rollout(system.planner(), problems, RolloutConfig(), grid_source=dataset_grids(ds))
-    print(f"dagger: rolled out {len(problems)} problems of {len(ds.scene_indices('train'))} training scenes in "
+    print(f"dagger: rolled out {len(problems)} problems of {len({p.scene_index for p in problems})} training scenes in "
           f"{time.perf_counter() - t0:.0f} s", flush=True)
     robot = load_robot(ds.manifest["robot"]["name"], dtype=torch.float64)
     expert = ds.manifest["config"]["expert_config"]
@@ -155,11 +158,16 @@ def aggregate(teacher: Path, settings, root: Path, seed: int) -> str:
     from samp.paths import file_sha256, find_checkpoint
     from samp.policy.registry import load_system
 
+    from samp.runs import RunFolder
+
     system = load_system(teacher)
     ds = open_dataset(system.binding.dataset_id, root)
     refs = scene_refs(ds)
+    # the teacher is rolled out where it was trained: the first `max_scenes` training scenes when it had that
+    max_scenes = ((RunFolder(teacher).read().get("config") or {}).get("datamodule") or {}).get("max_scenes")
+    scenes = ds.scene_indices("train")[:max_scenes] if max_scenes else None
     rules = {"per_scene": int(settings.per_scene), "back": int(settings.back),
-             "clean_share": float(settings.clean_share), "seed": int(seed)}
+             "clean_share": float(settings.clean_share), "seed": int(seed), "max_scenes": max_scenes}
     name = f"{_SUFFIX.sub('', ds.name)}_dagger_{_key([file_sha256(find_checkpoint(teacher)), ds.id, rules])[:8]}"
     try:
         found = open_dataset(name, root)
@@ -168,7 +176,8 @@ def aggregate(teacher: Path, settings, root: Path, seed: int) -> str:
     else:
         print(f"dagger: {found.name}@{found.id} was aggregated from {teacher} before: using it", flush=True)
         return f"{found.name}@{found.id}"
-    new_q, new_scene, counts = collect(system, ds, rules["per_scene"], rules["back"], rules["clean_share"], seed)
+    new_q, new_scene, counts = collect(system, ds, rules["per_scene"], rules["back"], rules["clean_share"], seed,
+                                       scenes)
     if not new_q:
         print("dagger: no plan was added (every rollout of the teacher was clean): the round adds nothing",
               flush=True)
@@ -241,6 +250,9 @@ def stage(cfg, overrides: list[str]) -> None:
             raise ValueError(f"dagger.{key} must be >= {low}, got {settings[key]}")
     if not 0 <= float(settings.clean_share) <= 1:
         raise ValueError(f"dagger.clean_share must be in [0, 1], got {settings.clean_share}")
+    if cfg.datamodule.get("max_trajectories") is not None:
+        raise ValueError("dagger.rounds cannot be combined with datamodule.max_trajectories (the first N training "
+                         "trajectories of the aggregated dataset are other ones); use datamodule.max_scenes")
     root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
     if settings.get("teacher") and rounds == 1:
         teacher = Path(str(settings.teacher)).expanduser()

@@ -19,13 +19,14 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-# one training scene of three demonstrations, which a teacher of four batches mostly collides on
-SPEC = {"name": "dg_tiny", "robot": "panda", "seed": 7, "train_scenes": 1, "val_scenes": 1,
+# two training scenes of three demonstrations; the teacher trains on the first only (max_scenes=1), and is rolled
+# out there alone; a teacher of four batches mostly collides
+SPEC = {"name": "dg_tiny", "robot": "panda", "seed": 7, "train_scenes": 2, "val_scenes": 1,
         "trajectories_per_scene": 3, "eval_problems_per_scene": 3, "generators": ["tabletop"], "resolutions": [16]}
 ARGS = ["experiment=quickstart", "datamodule.dataset=dg_tiny", "datamodule.n_e=16", "datamodule.val_samples=20",
         "trainer.max_epochs=1", "+trainer.limit_train_batches=4", "trainer.enable_progress_bar=false",
         "evaluation.problems=1", "evaluation.benchmark=null", "dagger.rounds=1", "dagger.per_scene=3",
-        "dagger.clean_share=1",
+        "dagger.clean_share=1", "datamodule.max_scenes=1",
         "build_missing.robot_sdf_overrides=['robot_sdf_samples=tiny','trainer.max_steps=40','robot_sdf_eval=tiny']"]
 
 
@@ -55,6 +56,7 @@ def test_the_run_trains_on_the_aggregated_dataset_its_teacher_made(staged):
     assert teacher["status"] == record["status"] == "completed"
     assert teacher["dataset_id"] == f"dg_tiny@{staged['base'].name}" and teacher["dagger_key"]
     assert not (staged["teacher"] / "eval").exists(), "the teacher is not evaluated: only the run is"
+    assert teacher["config"]["datamodule"]["max_scenes"] == 1 and "problems of 1 training scenes" in staged["stdout"]
     name, _, ident = record["dataset_id"].partition("@")
     assert name.startswith("dg_tiny_dagger_") and record["config"]["datamodule"]["dataset"] == record["dataset_id"]
     assert record["config"]["dagger"]["teacher"] == str(staged["teacher"])
@@ -132,6 +134,9 @@ def test_settings_and_datasets_it_cannot_use_are_refused_before_a_teacher_is_tra
                             "system": {}, "dagger": {"rounds": 1, "teacher": None, "per_scene": 0, "back": 3,
                                                      "clean_share": 0.1}})
     with pytest.raises(ValueError, match="dagger.per_scene must be >= 1"):
+        stage(cfg, [])
+    cfg.dagger.per_scene, cfg.datamodule.max_trajectories = 3, 10
+    with pytest.raises(ValueError, match="cannot be combined with datamodule.max_trajectories"):
         stage(cfg, [])
     assert not any(tmp_path.iterdir())
     files = SimpleNamespace(name="mine", id="abc", manifest={"scenes": [{"generator": "file", "seed": None}],

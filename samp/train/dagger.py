@@ -157,7 +157,6 @@ def aggregate(teacher: Path, settings, root: Path, seed: int) -> str:
     from samp.data.importing import ImportConfig, import_dataset
     from samp.paths import file_sha256, find_checkpoint
     from samp.policy.registry import load_system
-
     from samp.runs import RunFolder
 
     system = load_system(teacher)
@@ -179,8 +178,7 @@ def aggregate(teacher: Path, settings, root: Path, seed: int) -> str:
     new_q, new_scene, counts = collect(system, ds, rules["per_scene"], rules["back"], rules["clean_share"], seed,
                                        scenes)
     if not new_q:
-        print("dagger: no plan was added (every rollout of the teacher was clean): the round adds nothing",
-              flush=True)
+        print("dagger: no plan was added, so the round adds nothing to the dataset", flush=True)
     val = [refs[i] for i in ds.scene_indices("val")]
     with tempfile.TemporaryDirectory(dir=root, prefix=".dagger-") as tmp:
         source = Path(tmp) / f"{name}.npz"
@@ -239,7 +237,7 @@ def stage(cfg, overrides: list[str]) -> None:
     teacher, aggregate, and point `cfg.datamodule.dataset` at the aggregated dataset; records the teacher
     and the dataset under `cfg.dagger`."""
     from samp.runs.lineage import override_key
-    from samp.train.recipe import train
+    from samp.train.recipe import _repo_path, train
 
     settings = cfg.dagger
     rounds = int(settings.rounds)
@@ -255,7 +253,7 @@ def stage(cfg, overrides: list[str]) -> None:
                          "trajectories of the aggregated dataset are other ones); use datamodule.max_scenes")
     root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
     if settings.get("teacher") and rounds == 1:
-        teacher = Path(str(settings.teacher)).expanduser()
+        teacher = _repo_path(str(settings.teacher))  # relative to the project folder, as resume= is
         if not (teacher / "run.json").is_file():
             raise FileNotFoundError(f"dagger.teacher={settings.teacher}: not a run folder (no run.json there)")
         print(f"dagger: round 1 rolls out the given teacher {teacher}", flush=True)

@@ -35,8 +35,8 @@ import numpy as np
 
 from samp.data.import_sources import Recorded, read_source
 
-__all__ = ["ImportConfig", "Recorded", "check_recorded", "import_dataset", "read_source", "scene_from_ref",
-           "source_parents"]
+__all__ = ["ImportConfig", "Recorded", "check_recorded", "generated_scene_ref", "import_dataset", "read_source",
+           "scene_from_ref", "source_parents"]
 
 def check_recorded(world, robot, rec: Recorded, waypoints: int, resolution: float, margin: float,
                    max_jump: float) -> tuple[np.ndarray | None, str]:
@@ -183,6 +183,11 @@ def import_dataset(sources: list[Path], cfg: ImportConfig, root: Path | None = N
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def generated_scene_ref(generator: str, seed: int) -> str:
+    """The reference of a generated scene, `GENERATOR:SEED`, which `scene_from_ref` reads back."""
+    return f"{generator}:{int(seed)}"
 
 
 def scene_from_ref(ref: str):

@@ -71,6 +71,8 @@ def restarts(result, check: dict, clean_share: float, back: int, rng: np.random.
 def scene_refs(ds) -> list[str]:
     """`GENERATOR:SEED` of every scene of `ds`; ValueError when a scene is not generated (a file, an import)
     or the generators' settings were overridden, which such a reference does not carry."""
+    from samp.data.importing import generated_scene_ref
+
     infos = ds.manifest["scenes"]
     if any(s.get("generator") in (None, "file", "import") for s in infos):
         raise ValueError(f"dataset {ds.name}@{ds.id} has scenes that are not generated (scene files or imports); "
@@ -80,7 +82,7 @@ def scene_refs(ds) -> list[str]:
         raise ValueError(f"dataset {ds.name}@{ds.id} overrides its generators' settings, which a GENERATOR:SEED "
                          "scene reference does not carry; DAgger rounds handle datasets of the generators' own "
                          "settings only: set dagger.rounds=0")
-    return [f"{s['generator']}:{s['seed']}" for s in infos]
+    return [generated_scene_ref(s["generator"], s["seed"]) for s in infos]
 
 
 def collect(system, ds, per_scene: int, back: int, clean_share: float, seed: int, scenes: list[int] | None = None,

@@ -177,8 +177,7 @@ def aggregate(teacher: Path, settings, root: Path, seed: int) -> str:
     else:
         print(f"dagger: {found.name}@{found.id} was aggregated from {teacher} before: using it", flush=True)
         return f"{found.name}@{found.id}"
-    new_q, new_scene, counts = collect(system, ds, rules["per_scene"], rules["back"], rules["clean_share"], seed,
-                                       scenes)
+    new_q, new_scene, _ = collect(system, ds, rules["per_scene"], rules["back"], rules["clean_share"], seed, scenes)
     if not new_q:
         print("dagger: no plan was added, so the round adds nothing to the dataset", flush=True)
     val = [refs[i] for i in ds.scene_indices("val")]
@@ -216,9 +215,9 @@ def _teacher_key(overrides: list[str], cfg) -> str:
 def _dataset_ref(cfg) -> str:
     """The datamodule's dataset as `NAME@ID` (a name or prefix resolved in the run's datasets folder)."""
     from samp.data import read_manifest, resolve_ref
+    from samp.train.prerequisites import _datasets_root
 
-    root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
-    manifest = read_manifest(resolve_ref(str(cfg.datamodule.dataset), root))
+    manifest = read_manifest(resolve_ref(str(cfg.datamodule.dataset), _datasets_root(cfg)))
     return f"{manifest['name']}@{manifest['id']}"
 
 
@@ -239,6 +238,7 @@ def stage(cfg, overrides: list[str]) -> None:
     teacher, aggregate, and point `cfg.datamodule.dataset` at the aggregated dataset; records the teacher
     and the dataset under `cfg.dagger`."""
     from samp.runs.lineage import override_key
+    from samp.train.prerequisites import _datasets_root
     from samp.train.recipe import _repo_path, train
 
     settings = cfg.dagger
@@ -253,7 +253,7 @@ def stage(cfg, overrides: list[str]) -> None:
     if cfg.datamodule.get("max_trajectories") is not None:
         raise ValueError("dagger.rounds cannot be combined with datamodule.max_trajectories (the first N training "
                          "trajectories of the aggregated dataset are other ones); use datamodule.max_scenes")
-    root = Path(cfg.datamodule.get("root") or cfg.paths.datasets_dir)
+    root = _datasets_root(cfg)
     if settings.get("teacher") and rounds == 1:
         teacher = _repo_path(str(settings.teacher))  # relative to the project folder, as resume= is
         if not (teacher / "run.json").is_file():

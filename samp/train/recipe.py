@@ -4,10 +4,10 @@ evaluate, record.
 The experiment decides what is trained (`system`, `datamodule`, `model`, each a `_target_`); this file
 only runs the recipe. Before fitting, `prerequisites.prepare` resolves the system's robot SDF by name,
 builds what is missing when `build_missing` says so, and runs the DAgger rounds `dagger.rounds` asks for
-(`samp.train.dagger`: a teacher run, then the dataset the run trains on); after fitting, `after_fit.after_fit` evaluates the
-model just trained, in memory (`evaluation.problems` per split for a policy; export and Table III for a
-robot SDF). Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR` or `paths.runs_dir` moves the root)
-with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the evaluation writes; it is also a run of
+(`samp.train.dagger`: a teacher run, then the dataset the run trains on); after fitting,
+`after_fit.after_fit` evaluates the model just trained, in memory (`evaluation.problems` per split for a
+policy; export and Table III for a robot SDF). Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR`
+or `paths.runs_dir` moves the root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the evaluation writes; it is also a run of
 the MLflow tracking store (`samp.runs.tracking`; `tracking.uri`).
 `resume=RUN_DIR` continues a run in its own folder from its last checkpoint, with the overrides it was
 started with (new ones win) and its loggers continuing; `run_dir=DIR` puts a new run in a folder of your
@@ -133,7 +133,7 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
             cfg.resume = str(resume)
         cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
         cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
-        prepare(cfg, overrides)  # before this run's folder exists: a robot SDF or DAgger teacher built here is a run of its own
+        prepare(cfg, overrides)  # before this run's folder exists: a robot SDF or DAgger teacher is a run of its own
     folder, ckpt = _open_folder(cfg)
     with open_dict(cfg):
         cfg.run_dir = str(folder.path)

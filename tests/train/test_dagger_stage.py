@@ -66,13 +66,16 @@ def test_the_run_trains_on_the_aggregated_dataset_its_teacher_made(staged):
 
 def test_the_added_demonstrations_start_where_the_teacher_went_and_are_collision_free(staged):
     """The aggregated dataset holds the base dataset's demonstrations unchanged, and the expert plans the
-    round printed (at most one per rollout; this teacher collides on most): each from a state that is no stored start, to the
-    goal of a training demonstration, in a training scene, collision-free by pybullet."""
+    round printed (at most one per rollout; this teacher collides on most): each from a state that is no
+    stored start, to the goal of a training demonstration, in the scene the teacher trained on,
+    collision-free by pybullet. Collecting again from the same teacher and seed gives the same plans."""
     import torch
 
     from samp.data import open_dataset
     from samp.eval.checks import TrajectoryChecker
+    from samp.policy.registry import load_system
     from samp.robot import load_robot
+    from samp.train.dagger import collect
 
     record = json.loads((staged["run"] / "run.json").read_text())
     base, agg = open_dataset(staged["base"]), open_dataset(record["dataset_id"], staged["datasets"])
@@ -80,13 +83,20 @@ def test_the_added_demonstrations_start_where_the_teacher_went_and_are_collision
     got = [t.numpy() for t in agg.trajectories]
     (planned,) = map(int, re.findall(r"(\d+) expert plans from visited states", staged["stdout"]))
     assert planned >= 1 and len(got) == len(own) + planned
-    as_rows = lambda ts: sorted(map(lambda t: t.round(9).tobytes(), ts))  # noqa: E731 - the import may reorder
-    assert set(as_rows(own)) <= set(as_rows(got))
+    key = lambda t: t.round(9).tobytes()  # noqa: E731 - the import may reorder trajectories
+    own_keys = {key(t) for t in own}
+    assert own_keys <= {key(t) for t in got}
     starts = {tuple(t[0].round(9)) for t in own}
     train = base.scene_indices("train")
     goals = {tuple(own[k][-1].round(9)) for k in np.flatnonzero(np.isin(base.traj_scene.numpy(), train))}
-    new = [(t, s) for t, s in zip(got, agg.traj_scene.tolist()) if t.round(9).tobytes() not in set(as_rows(own))]
+    new = [(t, s) for t, s in zip(got, agg.traj_scene.tolist()) if key(t) not in own_keys]
     assert len(new) == planned
+    teacher = load_system(staged["teacher"])
+    again = [collect(teacher, base, 3, 3, 1.0, seed=0, scenes=train[:1], progress=False) for _ in range(2)]
+    assert [key(t) for t in again[0][0]] == [key(t) for t in again[1][0]]
+    assert len(again[0][0]) == len(new)  # what the round imported, which the import resamples: same ends
+    ends = lambda t: np.concatenate([t[0], t[-1]])  # noqa: E731
+    assert all(any(np.allclose(ends(t), ends(q), atol=1e-6) for t, _ in new) for q in again[0][0])
     with TrajectoryChecker(load_robot("panda", dtype=torch.float64)) as checker:
         for t, s in new:
             assert agg.manifest["scenes"][s]["split"] == "train"
@@ -95,7 +105,8 @@ def test_the_added_demonstrations_start_where_the_teacher_went_and_are_collision
             assert not checker.check(agg.scenes[s], [t])[0]["collision"]
 
 
-def test_the_same_command_again_finds_the_teacher_and_the_dataset_and_a_teacher_may_be_given(staged, monkeypatch, capsys):
+def test_the_same_command_again_finds_the_teacher_and_the_dataset_and_a_teacher_may_be_given(staged, monkeypatch,
+                                                                                              capsys):
     from omegaconf import open_dict
 
     from samp.train.config import compose_train_config

@@ -1,14 +1,14 @@
 """`python -m samp.train experiment=NAME [key=value ...]`: compose, prepare, seed, instantiate, fit,
 evaluate, record.
 
-The experiment decides what is trained (`system`, `datamodule`, `model`, each a `_target_`); this file
-only runs the recipe. Before fitting, `prerequisites.prepare` resolves the system's robot SDF by name,
-builds what is missing when `build_missing` says so, and runs the DAgger rounds `dagger.rounds` asks for
-(`samp.train.dagger`: a teacher run, then the dataset the run trains on); after fitting,
-`after_fit.after_fit` evaluates the model just trained, in memory (`evaluation.problems` per split for a
-policy; export and Table III for a robot SDF). Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR`
-or `paths.runs_dir` moves the root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the evaluation writes; it is also a run of
-the MLflow tracking store (`samp.runs.tracking`; `tracking.uri`).
+The experiment decides what is trained (`system`, `datamodule`, `model`, each a `_target_`); this file only
+runs the recipe. Before fitting, `prerequisites.prepare` resolves the system's robot SDF by name, builds what
+is missing when `build_missing` says so, and runs the DAgger rounds `dagger.rounds` asks for
+(`samp.train.dagger`: a teacher run, then the dataset the run trains on); after fitting, `after_fit.after_fit`
+evaluates the model just trained, in memory (`evaluation.problems` per split for a policy; export and Table
+III for a robot SDF). Each run gets `runs/<name>/<timestamp>/` (`SAMP_RUNS_DIR` or `paths.runs_dir` moves the
+root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the evaluation writes; it is also a
+run of the MLflow tracking store (`samp.runs.tracking`; `tracking.uri`).
 `resume=RUN_DIR` continues a run in its own folder from its last checkpoint, with the overrides it was
 started with (new ones win) and its loggers continuing; `run_dir=DIR` puts a new run in a folder of your
 choice. `-m` / `sweep=NAME` hand the arguments to the Hydra multirun entry point (`samp.train.sweep`),

@@ -181,11 +181,17 @@ def track_evaluation(out: Path, report: dict, metrics: dict[str, float], run_pat
 def _section(out: Path, run_path: Path | None) -> str:
     """The evaluation's section: `eval` for an evaluation without a run (the MLflow run is the evaluation),
     else its folder's name (`eval-2`; `out=/tmp/bench` gives `bench`) in the characters MLflow allows in names."""
-    import re
-
     from samp.names import EVAL_DIR
 
-    return EVAL_DIR if run_path is None else re.sub(r"[^\w\-. /]", "_", Path(out).name)
+    return EVAL_DIR if run_path is None else _mlflow_name(Path(out).name)
+
+
+def _mlflow_name(name: str) -> str:
+    """`name` with every character MLflow refuses in a metric or section name (anything but letters, digits,
+    `_ - . /` and spaces) as `_`: the planner `samp+check` logs as `samp_check`."""
+    import re
+
+    return re.sub(r"[^\w\-. /]", "_", name)
 
 
 def log_params(mlflow_client, run_id: str, params: dict) -> None:
@@ -207,7 +213,8 @@ def _log_section(mlflow_client, run_id: str, section: str, report: dict, metrics
     from samp.names import EVAL_PREFIX
 
     now = int(time.time() * 1000)
-    items = [Metric(f"{section}/{k.removeprefix(EVAL_PREFIX)}", float(v), now, step) for k, v in metrics.items()]
+    items = [Metric(_mlflow_name(f"{section}/{k.removeprefix(EVAL_PREFIX)}"), float(v), now, step)
+             for k, v in metrics.items()]
     for start in range(0, len(items), 1000):  # MLflow takes at most 1000 metrics a batch
         mlflow_client.log_batch(run_id, metrics=items[start:start + 1000])
     prefix = "samp." if section == "eval" else f"samp.{section}."

@@ -242,6 +242,21 @@ def test_a_reevaluation_is_a_new_section_of_the_same_run(server, quickstart, cli
         pytest.approx(record["metrics"]["eval/samp/val/success_rate"])], "the first evaluation's section changed"
 
 
+def test_a_samp_check_evaluation_is_tracked_under_a_name_mlflow_takes(server, quickstart, cli, tmp_path):
+    """MLflow refuses `+` in metric names: samp+check's metrics go to the run as `samp_check`, and the
+    evaluation exits cleanly (it used to fail after writing its files)."""
+    runs, rest = server
+    folder, record = quickstart
+    out = tmp_path / "check"
+    proc = cli("samp.eval", [f"run={folder}", *REEVAL, "check=2", f"out={out}"], runs, env=LOCAL)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    report = json.loads((out / "metrics.json").read_text())
+    assert report["planner"] == "samp+check"
+    run_id = record["loggers"]["mlflow"]["run_id"]
+    got = rest.history(run_id, "check/samp_check/val/success_rate")
+    assert [v for _, v in got] == [pytest.approx(report["metrics"]["val"]["success_rate"])]
+
+
 def test_an_evaluation_without_a_run_is_a_run_of_the_eval_experiment(server, quickstart, cli):
     runs, rest = server
     _, record = quickstart

@@ -19,7 +19,9 @@ is the answer; when none does, the plain rollout.
 The check reads the same anchor grid the policy reads, so it costs grid samples, not collision queries:
 the scene's exact SDF at n_e anchors by default, or the grid the evaluation's section hands to `plan`
 (`grids`, a `(problem, n_e) -> grid` source): with `grid_source=reconstructed` both the policy and the check
-see the grid reconstructed from the cameras, never the exact one. Its solution time is the whole call:
+see the grid reconstructed from the cameras, never the exact one. `n_e` gives the check a grid of its own
+resolution from the same source. A robot point outside the grid's bounds (below its lowest anchors, near
+the table top) reads the border value less its distance to the bounds, a lower bound of a signed distance. Its solution time is the whole call:
 encoding, steps and checks (fetching or reconstructing the grid is not timed, as for the rollout
 engine's step policies).
 """
@@ -53,6 +55,7 @@ class CheckConfig:
     via_reach: float = 0.15  # a candidate turns to the goal within this of its via configuration ...
     margin: float = 0.01  # clear: the grid's SDF at every robot point stays above this
     substeps: int = 3  # configurations checked per step (the step's end included)
+    n_e: int | None = None  # anchors per axis of the grid the check reads, from the policy's grid source; None: its n_e
     finish: float = 0.5  # a candidate that stalls this close to the goal (rad) ends on a straight checked segment
     max_steps: int = 150
     position_tolerance: float = 0.02
@@ -73,6 +76,9 @@ class CheckConfig:
                              f"0 is the plain rollout), got {self.noisy!r}")
         if self.step_noise < 0:
             raise ValueError(f"check.step_noise must be >= 0 radians, got {self.step_noise}")
+        if self.n_e is not None and not (isinstance(self.n_e, int) and self.n_e >= 2):
+            raise ValueError(f"check.n_e must be null (the policy's own anchors) or an integer >= 2 (anchors per axis of "
+                             f"the grid the check reads), got {self.n_e!r}")
         if self.spread < 0 or self.via_reach <= 0:
             raise ValueError(f"check.spread must be >= 0 and check.via_reach > 0 radians, got {self.spread}, "
                              f"{self.via_reach}")
@@ -98,12 +104,18 @@ class CheckedPolicy:
 
     def _clearance(self, grid: torch.Tensor, bounds, q0: torch.Tensor, q1: torch.Tensor,
                    substeps: int | None = None) -> torch.Tensor:
-        """(R,) the smallest grid SDF at the robot points over `substeps` configurations from q0 to q1 (R, n)."""
+        """(R,) the smallest grid SDF at the robot points over `substeps` configurations from q0 to q1 (R, n).
+
+        A point outside the grid's bounds reads the border value less its distance to the bounds: a signed
+        distance changes by at most that much, so the table top below the grid's lowest anchors is not read
+        as clear."""
         s = substeps or self.cfg.substeps
         t = torch.arange(1, s + 1, dtype=q0.dtype, device=q0.device) / s
         qs = (q0[:, None] + t[None, :, None] * (q1 - q0)[:, None]).reshape(-1, q0.shape[1])  # (R s, n)
-        points = self.robot.transform_points(qs)  # (R s, M, 3)
-        d = sample_grid(grid, points.reshape(-1, 3), bounds).view(len(q0), -1)
+        points = self.robot.transform_points(qs).reshape(-1, 3)  # (R s M, 3)
+        lo, hi = (torch.as_tensor(b, dtype=points.dtype, device=points.device) for b in bounds)
+        outside = torch.maximum(lo - points, points - hi).clamp(min=0).norm(dim=1)
+        d = (sample_grid(grid, points, bounds) - outside.to(grid.dtype)).view(len(q0), -1)
         return d.amin(dim=1)
 
     def _finishes(self, grid: torch.Tensor, bounds, q: torch.Tensor, goal: torch.Tensor, clear: float) -> bool:
@@ -126,6 +138,15 @@ class CheckedPolicy:
                              f"was trained on {self.policy.system.bounds}")
         return self.policy._environment(grids(problem, self.n_e))
 
+    def _check_grid(self, problem, grids, env1: EnvBatch) -> torch.Tensor:
+        """The grid the check reads: the policy's own, or at `n_e` anchors from the same source (the scene's
+        exact grid, or `grids(problem, n_e)`)."""
+        n_e = self.cfg.n_e
+        if n_e is None or n_e == self.n_e:
+            return env1.grids[0]
+        grid = problem.scene.anchor_grid(n_e, self.policy.system.bounds) if grids is None else grids(problem, n_e)
+        return torch.as_tensor(grid).to(device=env1.grids.device, dtype=env1.grids.dtype)
+
     def plan(self, problem, grids=None) -> PlannedTrajectory:
         """problem: a `samp.eval.Problem` (its scene, q_start, q_goal) -> the chosen trajectory.
         grids: None (the scene's exact anchor grid) or a grid source `(problem, n_e) -> (n_e, n_e, n_e)`,
@@ -133,10 +154,11 @@ class CheckedPolicy:
         cfg, robot, policy = self.cfg, self.robot, self.policy
         dev, dt = robot.device, robot.dtype
         env1 = self._grid_env(problem, grids)  # before the clock, as the rollout engine fetches grids untimed
+        grid = self._check_grid(problem, grids, env1)
         t0 = time.perf_counter()
         K = cfg.candidates
         env = EnvBatch(env1.grids, env1.bounds, torch.zeros(K, dtype=torch.long, device=dev))
-        grid, bounds = env1.grids[0], policy.system.bounds
+        bounds = policy.system.bounds
         start = torch.as_tensor(np.asarray(problem.q_start), dtype=dt, device=dev)
         goal = torch.as_tensor(np.asarray(problem.q_goal), dtype=dt, device=dev)
         goal_pose = ee_poses(robot, np.asarray(problem.q_goal, dtype=np.float64)[None])

@@ -6,8 +6,9 @@ margin as clear.
 The policy is a stand-in whose steps are known (a straight joint-space step towards its target), so which
 candidate is clear is decided by the grid alone. The clearance oracle uses a linear field f(p) = b - d . p
 as the grid: trilinear interpolation reproduces a linear field exactly, so the check's clearance of a path
-is the field's minimum over the robot points along it (clamped into the bounds, as the grid's border is),
-computed here without the grid."""
+is the field's minimum over the robot points along it, computed here without the grid. A point outside the
+bounds reads the field at the nearest point of the bounds less its distance to them (the check's lower
+bound for a signed distance)."""
 
 from __future__ import annotations
 
@@ -64,14 +65,16 @@ def _field(d, b: float):
     return lambda problem, n_e: grid
 
 
-def _clearance(robot, trajectory: np.ndarray, d, b: float, substeps: int = 3) -> float:
-    """The oracle: min of b - d . p over the robot points at the start and `substeps` configurations per step."""
+def _clearance(robot, trajectory: np.ndarray, d, b: float, substeps: int = 3, bounds=DEFAULT_BOUNDS) -> float:
+    """The oracle: min of b - d . p over the robot points at the start and `substeps` configurations per step,
+    a point outside `bounds` taken at the nearest point inside less its distance to it."""
     q = torch.as_tensor(trajectory, dtype=torch.float64)
     t = torch.arange(1, substeps + 1, dtype=torch.float64) / substeps
     states = torch.cat([q[:1], (q[:-1, None] + t[None, :, None] * (q[1:] - q[:-1])[:, None]).reshape(-1, q.shape[1])])
-    lo, hi = (torch.tensor(v, dtype=torch.float64) for v in DEFAULT_BOUNDS)
-    points = torch.maximum(torch.minimum(robot.transform_points(states), hi), lo)
-    return float((b - points @ torch.tensor(d, dtype=torch.float64)).min())
+    lo, hi = (torch.tensor(v, dtype=torch.float64) for v in bounds)
+    points = robot.transform_points(states)
+    inside = torch.maximum(torch.minimum(points, hi), lo)
+    return float((b - inside @ torch.tensor(d, dtype=torch.float64) - (points - inside).norm(dim=-1)).min())
 
 
 def _plain_extent(panda, problem, d) -> float:
@@ -172,6 +175,49 @@ def test_the_evaluation_hands_samp_check_its_section_grids(panda, blocked):
     result = evaluate(checked, [problem], {"timed_problems": 0}, grids=source)
     assert asked == [16] and checked.chosen["plain"] == 1
     assert result["records"][0]["collision"], "collisions are still checked against the true scene"
+
+
+def test_points_beyond_the_grid_read_less_than_its_border(panda, problem):
+    """Bounds that end above the arm's lower links (z from 0.5 m): on a grid that reads 0.3 m everywhere, those
+    points are up to 0.42 m below the bounds, so the check must see the plain rollout as unclear (it read the
+    border's 0.3 m before), with the oracle's clearance below the margin; with bounds from the table up the
+    same grid is clear."""
+    (lo, hi), flat = DEFAULT_BOUNDS, lambda p, n_e: torch.full((N_E, N_E, N_E), 0.3)
+    results = {}
+    for z0 in (0.5, lo[2]):
+        bounds = ((lo[0], lo[1], z0), hi)
+        policy = LinePolicy(panda)
+        policy.system = SimpleNamespace(bounds=bounds)
+        checked = CheckedPolicy(policy, CheckConfig(candidates=1, margin=MARGIN))
+        boxed = Problem(Scene("empty", bounds=bounds), problem.q_start, problem.q_goal, name=problem.name)
+        trajectory = checked.plan(boxed, grids=flat).trajectory
+        results[z0] = checked.chosen, _clearance(panda, trajectory, (0.0, 0.0, 0.0), 0.3, bounds=bounds)
+    (below, low_clear), (inside, inside_clear) = results[0.5], results[lo[2]]
+    assert below["unclear"] == 1 and low_clear < MARGIN, (below, low_clear)
+    assert inside["plain"] == 1 and inside_clear == pytest.approx(0.3), (inside, inside_clear)
+
+
+def test_the_check_reads_a_finer_grid_from_the_same_source(panda, blocked):
+    """`n_e` gives the check its own grid, asked of the section's source (or the scene's exact grid): a source
+    whose 16-anchor grid missed the box but whose 24-anchor grid has it makes the plain rollout unclear,
+    while the policy still steps on the 16-anchor grid."""
+    problem, missed = blocked
+    asked = []
+
+    def source(p, n_e):
+        asked.append(n_e)
+        return (missed if n_e == 16 else p.scene).anchor_grid(n_e)
+
+    policy = LinePolicy(panda, 16)
+    checked = CheckedPolicy(policy, CheckConfig(candidates=1, n_e=24))
+    checked.plan(problem, grids=source)
+    assert asked == [16, 24] and checked.chosen == {"plain": 0, "noisy": 0, "via": 0, "unclear": 1, "unreached": 0}
+    assert torch.equal(policy.seen[-1].float(), missed.anchor_grid(16).float()), "the policy stepped on another grid"
+    exact = CheckedPolicy(LinePolicy(panda, 16), CheckConfig(candidates=1, n_e=24))
+    exact.plan(problem)
+    assert exact.chosen["unclear"] == 1, "without a source the check reads the scene's exact grid at n_e"
+    with pytest.raises(ValueError, match="check.n_e"):
+        CheckConfig(n_e=1)
 
 
 def test_noisy_candidates_are_the_policys_own_rollouts_shaken(panda, problem):

@@ -21,9 +21,9 @@ the scene's exact SDF at n_e anchors by default, or the grid the evaluation's se
 (`grids`, a `(problem, n_e) -> grid` source): with `grid_source=reconstructed` both the policy and the check
 see the grid reconstructed from the cameras, never the exact one. `n_e` gives the check a grid of its own
 resolution from the same source. A robot point outside the grid's bounds (below its lowest anchors, near
-the table top) reads the border value less its distance to the bounds, a lower bound of a signed distance. Its solution time is the whole call:
-encoding, steps and checks (fetching or reconstructing the grid is not timed, as for the rollout
-engine's step policies).
+the table top) reads the border value less its distance to the bounds, a lower bound of a signed distance.
+Its solution time is the whole call: encoding, steps and checks (fetching or reconstructing the grid is not
+timed, as for the rollout engine's step policies).
 """
 
 from __future__ import annotations
@@ -77,8 +77,8 @@ class CheckConfig:
         if self.step_noise < 0:
             raise ValueError(f"check.step_noise must be >= 0 radians, got {self.step_noise}")
         if self.n_e is not None and not (isinstance(self.n_e, int) and self.n_e >= 2):
-            raise ValueError(f"check.n_e must be null (the policy's own anchors) or an integer >= 2 (anchors per axis of "
-                             f"the grid the check reads), got {self.n_e!r}")
+            raise ValueError(f"check.n_e must be null (the policy's own anchors) or an integer >= 2 (anchors per "
+                             f"axis of the grid the check reads), got {self.n_e!r}")
         if self.spread < 0 or self.via_reach <= 0:
             raise ValueError(f"check.spread must be >= 0 and check.via_reach > 0 radians, got {self.spread}, "
                              f"{self.via_reach}")

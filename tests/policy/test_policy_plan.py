@@ -250,9 +250,10 @@ def test_checked_planner_with_one_candidate_is_the_plain_plan(run_dir):
 
 def test_checked_planner_clearance_matches_an_independent_trilinear_oracle(run_dir):
     """The check's clearance of a segment is the smallest anchor-grid SDF at the robot points over its
-    sub-steps, recomputed here with scipy's trilinear interpolation of the grid (not samp's grid_sample); a
-    sub-step left out or a swapped grid axis would change it. Candidates are deterministic per problem name,
-    and the first heads straight for the goal."""
+    sub-steps, recomputed here with scipy's trilinear interpolation of the grid (not samp's grid_sample), a
+    point outside the bounds read at the nearest point inside less its distance to it; a sub-step left out
+    or a swapped grid axis would change it. Candidates are deterministic per problem name, and the first
+    heads straight for the goal."""
     from scipy.interpolate import RegularGridInterpolator
 
     checked = load_policy(run_dir, check={"candidates": 6, "substeps": 3})
@@ -270,7 +271,10 @@ def test_checked_planner_clearance_matches_an_independent_trilinear_oracle(run_d
     t = np.arange(1, 4)[None, :, None] / 3
     qs = (q0.numpy()[:, None] + t * (q1 - q0).numpy()[:, None]).reshape(-1, 7)
     pts = checked.robot.transform_points(torch.as_tensor(qs, dtype=checked.robot.dtype)).double().numpy()
-    want = interp(np.clip(pts.reshape(-1, 3), lo, hi)).reshape(5, -1).min(axis=1)
+    pts = pts.reshape(-1, 3)
+    inside = np.clip(pts, lo, hi)
+    assert (pts != inside).any(), "no robot point left the bounds: the reading beyond them went untested"
+    want = (interp(inside) - np.linalg.norm(pts - inside, axis=1)).reshape(5, -1).min(axis=1)
     np.testing.assert_allclose(got, want, atol=1e-4)
     start, goal = torch.zeros(7, dtype=torch.float64), torch.full((7,), 0.3, dtype=torch.float64)
     vias = checked._vias(start, goal, "x")

@@ -15,9 +15,10 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
+import time
 from pathlib import Path
 
-__all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "config_path", "env_folder", "file_sha256", "find_checkpoint",
+__all__ = ["REPO_ROOT", "cache_dir", "check_name", "write_cache_file", "conf_dir", "config_path", "env_folder", "file_sha256", "find_checkpoint",
            "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "source_checkout", "user_config"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -118,6 +119,19 @@ def cache_dir(*parts: str) -> Path:
     path = env_folder("SAMP_CACHE_DIR", default).joinpath(*parts)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def write_cache_file(path: Path, write) -> None:
+    """Write one cache entry atomically: `write(f)` fills a binary file under a temporary name that no other
+    process uses, which then replaces `path`. Workers that build the same entry at once (the robot's points
+    in each generation worker) each put identical bytes in place; none loses its temporary to another."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{time.time_ns()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def resolve_asset(ref: str, relative_to: Path | None = None) -> Path:

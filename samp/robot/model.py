@@ -16,7 +16,7 @@ import pytorch_kinematics as pk
 import torch
 from torch import nn
 
-from samp.paths import cache_dir, file_sha256, resolve_asset
+from samp.paths import cache_dir, file_sha256, resolve_asset, write_cache_file
 from samp.robot.config import RobotConfig, load_robot_config
 from samp.robot.geometry import LinkGeometry, link_geometry
 from samp.robot.points import sample_shell_points
@@ -154,9 +154,7 @@ class Robot(nn.Module):
             fk = self._base_inv @ self._fk_raw(self.home[None])
         poses = {name: fk[self._frame[name], 0].numpy() for name in self.link_names}
         points, links, shells = sample_shell_points(self.geometry, self.point_link_names, poses, cfg.points)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, points=points, links=links, shells=shells)
-        tmp.replace(path)
+        write_cache_file(path, lambda f: np.savez(f, points=points, links=links, shells=shells))
         return points, links, shells
 
     # ----------------------------------------------------------------- device and dtype

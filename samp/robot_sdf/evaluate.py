@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from samp.paths import write_cache_file
 from samp.robot_sdf.samples import link_signed_distance
 
 __all__ = ["EVAL_FORMAT", "PAPER_TABLE_III", "SDFEvalConfig", "error_metrics", "evaluate_methods",
@@ -86,9 +87,7 @@ def _cached(path: Path, build) -> dict[str, np.ndarray]:
         with np.load(path) as z:
             return dict(z)
     arrays = build()
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
+    write_cache_file(path, lambda f: np.savez(f, **arrays))
     return arrays
 
 

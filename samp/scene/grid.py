@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from samp.names import N_E_MAX
-from samp.paths import cache_dir
+from samp.paths import cache_dir, write_cache_file
 from samp.scene.model import Scene, check_bounds
 
 __all__ = ["anchor_points", "check_n_e", "anchor_grid", "grid_coords", "sample_grid"]
@@ -51,9 +51,7 @@ def anchor_grid(scene: Scene, n_e: int, bounds=None, cache: bool = True) -> torc
     # float32 throughout: the grid is stored in float32, and it halves the memory traffic of 160^3 x K.
     grid = torch.stack([scene.sdf(plane) for plane in anchor_points(n_e, bounds, dtype=torch.float32)])  # x-slabs
     if cache:
-        tmp = path.with_suffix(".tmp.npy")
-        np.save(tmp, grid.numpy())
-        tmp.replace(path)
+        write_cache_file(path, lambda f: np.save(f, grid.numpy()))
     return grid
 
 

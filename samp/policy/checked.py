@@ -22,6 +22,9 @@ the scene's exact SDF at n_e anchors by default, or the grid the evaluation's se
 see the grid reconstructed from the cameras, never the exact one. `n_e` gives the check a grid of its own
 resolution from the same source. A robot point outside the grid's bounds (below its lowest anchors, near
 the table top) reads the border value less its distance to the bounds, a lower bound of a signed distance.
+With `self_collision` (the default) a checked configuration is also unclear where the robot touches itself:
+its own convex parts in a simulator world without obstacles, the check the evaluation makes (the planner
+knows the robot's geometry, as the expert does).
 Its solution time is the whole call: encoding, steps and checks (fetching or reconstructing the grid is not
 timed, as for the rollout engine's step policies).
 """
@@ -55,6 +58,7 @@ class CheckConfig:
     via_reach: float = 0.15  # a candidate turns to the goal within this of its via configuration ...
     margin: float = 0.01  # clear: the grid's SDF at every robot point stays above this
     substeps: int = 3  # configurations checked per step (the step's end included)
+    self_collision: bool = True  # a checked configuration where the robot touches itself is not clear
     n_e: int | None = None  # anchors per axis of the grid the check reads, from the policy's grid source; None: its n_e
     finish: float = 0.5  # a candidate that stalls this close to the goal (rad) ends on a straight checked segment
     max_steps: int = 150
@@ -91,6 +95,29 @@ class CheckedPolicy:
         self.policy, self.cfg, self.name = policy, config or CheckConfig(), name
         self.robot, self.n_e = policy.robot, policy.n_e
         self.chosen: dict[str, int] = {"plain": 0, "noisy": 0, "via": 0, "unclear": 0, "unreached": 0}
+        self._free = None  # the robot alone in a simulator world, for the self-collision check (made on first use)
+
+    def close(self) -> None:
+        """Release the self-collision check's simulator client (made again if `plan` is called later)."""
+        if self._free is not None:
+            self._free.close()
+            self._free = None
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: pybullet may already be gone
+            pass
+
+    def _self_hits(self, qs: torch.Tensor) -> np.ndarray:
+        """(C, n) configurations -> (C,) bool: the robot touches itself (collision links that are not excluded
+        as neighbours), by the robot's convex parts in a world without obstacles: the evaluation's check."""
+        if self._free is None:
+            from samp.scene import Scene
+            from samp.sim import World
+
+            self._free = World(self.robot, Scene(name="no_obstacles"))
+        return self._free.in_collision(qs, margin=0.0, self_collision=True, joint_limits=False)
 
     def _vias(self, start: torch.Tensor, goal: torch.Tensor, key: str) -> torch.Tensor:
         """(K, n) the targets of the first leg: the goal for candidate 0 and the noisy ones, via configurations
@@ -104,7 +131,8 @@ class CheckedPolicy:
 
     def _clearance(self, grid: torch.Tensor, bounds, q0: torch.Tensor, q1: torch.Tensor,
                    substeps: int | None = None) -> torch.Tensor:
-        """(R,) the smallest grid SDF at the robot points over `substeps` configurations from q0 to q1 (R, n).
+        """(R,) the smallest grid SDF at the robot points over `substeps` configurations from q0 to q1 (R, n);
+        -inf where the robot touches itself at one of them (`self_collision`).
 
         A point outside the grid's bounds reads the border value less its distance to the bounds: a signed
         distance changes by at most that much, so the table top below the grid's lowest anchors is not read
@@ -115,8 +143,11 @@ class CheckedPolicy:
         points = self.robot.transform_points(qs).reshape(-1, 3)  # (R s M, 3)
         lo, hi = (torch.as_tensor(b, dtype=points.dtype, device=points.device) for b in bounds)
         outside = torch.maximum(lo - points, points - hi).clamp(min=0).norm(dim=1)
-        d = (sample_grid(grid, points, bounds) - outside.to(grid.dtype)).view(len(q0), -1)
-        return d.amin(dim=1)
+        d = (sample_grid(grid, points, bounds) - outside.to(grid.dtype)).view(len(q0), -1).amin(dim=1)
+        if self.cfg.self_collision:
+            hit = torch.as_tensor(self._self_hits(qs).reshape(len(q0), s).any(axis=1), device=d.device)
+            d = d.masked_fill(hit, -float("inf"))
+        return d
 
     def _finishes(self, grid: torch.Tensor, bounds, q: torch.Tensor, goal: torch.Tensor, clear: float) -> bool:
         """Whether a candidate stalled at q (clear so far) ends on the straight segment to the goal: within

@@ -252,11 +252,11 @@ def test_checked_planner_clearance_matches_an_independent_trilinear_oracle(run_d
     """The check's clearance of a segment is the smallest anchor-grid SDF at the robot points over its
     sub-steps, recomputed here with scipy's trilinear interpolation of the grid (not samp's grid_sample), a
     point outside the bounds read at the nearest point inside less its distance to it; a sub-step left out
-    or a swapped grid axis would change it. Candidates are deterministic per problem name, and the first
-    heads straight for the goal."""
+    or a swapped grid axis would change it; with the self-collision check, -inf where the arm touches itself.
+    Candidates are deterministic per problem name, and the first heads straight for the goal."""
     from scipy.interpolate import RegularGridInterpolator
 
-    checked = load_policy(run_dir, check={"candidates": 6, "substeps": 3})
+    checked = load_policy(run_dir, check={"candidates": 6, "substeps": 3, "self_collision": False})
     scene, _ = _problem(checked.policy)
     grid = scene.anchor_grid(checked.n_e)
     bounds = checked.policy.system.bounds
@@ -276,6 +276,18 @@ def test_checked_planner_clearance_matches_an_independent_trilinear_oracle(run_d
     assert (pts != inside).any(), "no robot point left the bounds: the reading beyond them went untested"
     want = (interp(inside) - np.linalg.norm(pts - inside, axis=1)).reshape(5, -1).min(axis=1)
     np.testing.assert_allclose(got, want, atol=1e-4)
+    # with the self-collision check (the default), a segment on which the arm touches itself reads -inf: the
+    # evaluation's own self-collision check of the same sub-steps says where
+    from samp.eval.checks import TrajectoryChecker
+
+    oracle = TrajectoryChecker(checked.robot)
+    folded = oracle._free_world().in_collision(qs, self_collision=True, joint_limits=False).reshape(5, -1).any(axis=1)
+    oracle.close()
+    assert folded.any() and not folded.all(), "the random segments must include some that fold and some that do not"
+    checked.cfg.self_collision = True
+    got = checked._clearance(grid.to(checked.robot.dtype), bounds, q0.to(checked.robot.dtype),
+                             q1.to(checked.robot.dtype)).double().numpy()
+    np.testing.assert_allclose(got, np.where(folded, -np.inf, want), atol=1e-4)
     start, goal = torch.zeros(7, dtype=torch.float64), torch.full((7,), 0.3, dtype=torch.float64)
     vias = checked._vias(start, goal, "x")
     assert torch.equal(vias, checked._vias(start, goal, "x")) and not torch.equal(vias, checked._vias(start, goal, "y"))

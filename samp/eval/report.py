@@ -120,11 +120,18 @@ def _group_rows(section: Section, hard: list[bool]) -> dict[str, list[int]]:
     return rows
 
 
-def _subset(group: str) -> str:
-    """What a subset group holds, for the report: 'benchmark_hard' -> 'the problems whose straight ...'."""
-    if group.endswith(HARD):
+def _subset(group: str, section: str) -> str:
+    """What a subset group of `section` holds, for the report: 'benchmark_hard' -> 'the problems whose straight
+    ...', 'benchmark_shelf' -> 'the problems in shelf scenes'."""
+    if group == section + HARD:
         return "the problems whose straight joint-space line collides"
-    return f"the problems in {group.partition('_')[2]} scenes"
+    return f"the problems in {group.removeprefix(section + '_')} scenes"
+
+
+def _source_line(group: str, entry: dict) -> str:
+    """A group's line in metrics.md: a section's source in full; a subset names its section instead."""
+    section = entry.get("section", group)
+    return f"- {group}: " + (entry["source"] if section == group else f"{_subset(group, section)} of `{section}`")
 
 
 def _evaluate_section(planner, section: Section, cfg, expert) -> dict:
@@ -177,8 +184,9 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
         results = _evaluate_section(planner, section, cfg, expert)
         straight = results.get("straight") or results[planner.name]
         for group, rows in _group_rows(section, _hard(straight["records"])).items():
-            groups[group] = {"source": section.source + ("" if group == section.name else f"; {_subset(group)}"),
-                             "problems": len(rows)}
+            subset = "" if group == section.name else _subset(group, section.name)
+            groups[group] = {"source": section.source + (f"; {subset}" if subset else ""), "problems": len(rows),
+                             "section": section.name}
             for name, result in results.items():
                 m = summarize([result["records"][i] for i in rows], cfg.rollout())
                 if group != section.name and "throughput" in m:  # batches mix the subsets: only the section's holds
@@ -241,7 +249,7 @@ def _write(out: Path, cfg, report: dict, planner, problems: list, records: list[
             for name, block in ((report["planner"], "metrics"), ("expert", "expert"), ("straight", "straight"))
             if report.get(block) and group in report[block] and (block == "metrics" or name != report["planner"])]
     table = markdown_table(rows, cfg.rollout())
-    sources = "\n".join(f"- {g}: {v['source']}" for g, v in report["groups"].items() if not g.endswith(HARD))
+    sources = "\n".join(_source_line(g, v) for g, v in report["groups"].items() if not g.endswith(HARD))
     report.update(config=asdict(cfg), created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
                   code_version=code_version())
     reconstructions = [s.reconstruction for s in sections if s.reconstruction is not None]

@@ -48,7 +48,8 @@ class Line:
 
 
 @pytest.fixture(scope="module")
-def report(datasets, panda, tmp_path_factory):
+def evaluated(datasets, panda, tmp_path_factory):
+    """The folder the evaluation of the line on the dataset's splits and the benchmark wrote."""
     from samp.eval.benchmark import Benchmark
     from samp.eval.report import evaluate_sections, protocol_sections
 
@@ -57,7 +58,18 @@ def report(datasets, panda, tmp_path_factory):
     sections = protocol_sections(cfg, ds, [Benchmark("benchmark", bench)], panda, trained=ds)
     out = tmp_path_factory.mktemp("out")
     evaluate_sections(Line(panda), sections, cfg, out, dataset=f"{ds.name}@{ds.id}")
-    return json.loads((out / "metrics.json").read_text()), [json.loads(x) for x in open(out / "problems.jsonl")]
+    return out
+
+
+@pytest.fixture(scope="module")
+def report(evaluated):
+    return (json.loads((evaluated / "metrics.json").read_text()),
+            [json.loads(x) for x in open(evaluated / "problems.jsonl")])
+
+
+@pytest.fixture(scope="module")
+def metrics_md(evaluated):
+    return (evaluated / "metrics.md").read_text()
 
 
 def test_sections_hold_the_stored_evaluation_problems_of_their_scenes(datasets, report):
@@ -73,6 +85,20 @@ def test_sections_hold_the_stored_evaluation_problems_of_their_scenes(datasets, 
     assert keys <= stored and not keys & demos
     assert {r["group"] for r in records} == {"val", "train", "benchmark"}
     assert {r["planner"] for r in records} == {"line", "expert", "straight"}, "the expert and the line are always rows"
+
+
+def test_metrics_md_gives_each_source_once_and_names_the_section_of_a_subset(datasets, report, metrics_md):
+    """metrics.md lists what each group is: a section with its dataset and problem count, a scene-generator
+    subset as its generator and its section (not the section's whole source again)."""
+    ds, bench = datasets
+    data, _ = report
+    lines = [line for line in metrics_md.splitlines() if line.startswith("- ")]
+    assert lines == [f"- val: {data['groups']['val']['source']}", f"- train: {data['groups']['train']['source']}",
+                     f"- benchmark: {data['groups']['benchmark']['source']}",
+                     "- benchmark_tabletop: the problems in tabletop scenes of `benchmark`",
+                     "- benchmark_shelf: the problems in shelf scenes of `benchmark`"]
+    assert f"{bench.name}@{bench.id}" in lines[2] and f"{ds.name}@{ds.id}" in lines[0]
+    assert data["groups"]["benchmark_shelf"]["section"] == "benchmark"
 
 
 def test_the_hard_subset_is_where_the_straight_line_collides(report):

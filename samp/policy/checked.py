@@ -10,11 +10,13 @@ and goal (normal, `spread` radians per joint, seeded by the problem's name), and
 `via_reach` radians of it, or after a third of `max_steps`) for the goal. All candidates step
 together, one policy call per step. After each step the new segment of every candidate is checked against
 the anchor grid: the grid's SDF, trilinear at the robot points posed at `substeps` configurations along the
-segment, must stay above `margin` metres; a detour that fails this stops there (the plain rollout always
-runs on). A candidate that stalls within `finish` radians of the goal configuration ends on the straight
-segment to it when the grid says that segment is clear too (the learned policy tends to stop a few
-centimetres short of goals close to surfaces). The first candidate to reach the goal with a clear record
-is the answer; when none does, the plain rollout.
+segment, must stay above `margin` metres (a candidate's clearance is the smallest value read so far). A
+candidate that stalls within `finish` radians of the goal configuration ends on the straight segment to it
+when the grid says that segment is clear too (the learned policy tends to stop a few centimetres short of
+goals close to surfaces). The first candidate to reach the goal with a clear record
+is the answer. A candidate that fails the check steps on to the goal all the same, and when none reaches
+it clear, the answer is the one that reached it with the most clearance (the plain rollout on ties, or
+when none reached it).
 
 The check reads the same anchor grid the policy reads, so it costs grid samples, not collision queries:
 the scene's exact SDF at n_e anchors by default, or the grid the evaluation's section hands to `plan`
@@ -232,8 +234,7 @@ class CheckedPolicy:
                     still[k] = still[k] + 1 if moved[k] < cfg.stall_threshold else 0
                     if hg[k] and pos[k] < cfg.position_tolerance and rot[k] < cfg.orientation_tolerance:
                         done[k], reached[k], ends[k] = True, True, step + 1
-                    elif (still[k] >= cfg.stall_steps and hg[k]) or not np.isfinite(q_np[k]).all() or \
-                            (k > 0 and clear[k] <= cfg.margin):  # an unclear detour cannot win: stop stepping it
+                    elif (still[k] >= cfg.stall_steps and hg[k]) or not np.isfinite(q_np[k]).all():
                         done[k], ends[k] = True, step + 1
                         if still[k] >= cfg.stall_steps and self._finishes(grid, bounds, q[k], goal, clear[k]):
                             reached[k] = finished[k] = True
@@ -245,9 +246,10 @@ class CheckedPolicy:
                     break
         if chosen is not None:
             self.chosen["plain" if chosen == 0 else "noisy" if chosen <= cfg.noisy else "via"] += 1
-        else:
-            chosen = 0
-            self.chosen["unclear" if reached[0] else "unreached"] += 1
+        else:  # none reached the goal clear: the one that reached it with the most clearance (plain on ties)
+            reachers = np.flatnonzero(reached)
+            chosen = int(reachers[np.argmax(clear[reachers])]) if len(reachers) else 0
+            self.chosen["unclear" if reached[chosen] else "unreached"] += 1
         end = ends[chosen] if ends[chosen] >= 0 else len(path) - 1
         trajectory = np.stack([p[chosen] for p in path[:end + 1]]
                               + ([np.asarray(problem.q_goal, dtype=np.float64)] if finished[chosen] else []))

@@ -10,8 +10,10 @@ and goal (normal, `spread` radians per joint, seeded by the problem's name), and
 `via_reach` radians of it, or after a third of `max_steps`) for the goal. All candidates step
 together, one policy call per step. After each step the new segment of every candidate is checked against
 the anchor grid: the grid's SDF, trilinear at the robot points posed at `substeps` configurations along the
-segment, must stay above `margin` metres (a candidate's clearance is the smallest value read so far). A
-candidate that stalls within `finish` radians of the goal configuration ends on the straight segment to it
+segment, must stay above `margin` metres (a candidate's clearance is the smallest value read so far). Goals
+often lie close to surfaces (a target in a cabinet), where the grid reads less than the margin at the goal
+itself: where a segment lies within `finish` radians of the goal, it must only keep the goal's own reading
+less `goal_slack` when that is lower. A candidate that stalls within `finish` radians of the goal configuration ends on the straight segment to it
 when the grid says that segment is clear too (the learned policy tends to stop a few centimetres short of
 goals close to surfaces). The first candidate to reach the goal with a clear record
 is the answer. A candidate that fails the check steps on to the goal all the same, and when none reaches
@@ -59,6 +61,8 @@ class CheckConfig:
     spread: float = 0.6  # std of the via configurations around the start-goal midpoint, per joint
     via_reach: float = 0.15  # a candidate turns to the goal within this of its via configuration ...
     margin: float = 0.01  # clear: the grid's SDF at every robot point stays above this
+    goal_slack: float | None = 0.005  # within `finish` of the goal, reading no less than the goal itself less this
+    # (metres) is clear too (goals lie close to surfaces); None: `margin` everywhere
     substeps: int = 3  # configurations checked per step (the step's end included)
     self_collision: bool = True  # a checked configuration where the robot touches itself is not clear
     n_e: int | None = None  # anchors per axis of the grid the check reads, from the policy's grid source; None: its n_e
@@ -85,6 +89,8 @@ class CheckConfig:
         if self.n_e is not None and not (isinstance(self.n_e, int) and self.n_e >= 2):
             raise ValueError(f"check.n_e must be null (the policy's own anchors) or an integer >= 2 (anchors per "
                              f"axis of the grid the check reads), got {self.n_e!r}")
+        if self.goal_slack is not None and not self.goal_slack >= 0:
+            raise ValueError(f"check.goal_slack must be null or >= 0 metres, got {self.goal_slack!r}")
         if self.spread < 0 or self.via_reach <= 0:
             raise ValueError(f"check.spread must be >= 0 and check.via_reach > 0 radians, got {self.spread}, "
                              f"{self.via_reach}")
@@ -151,14 +157,32 @@ class CheckedPolicy:
             d = d.masked_fill(hit, -float("inf"))
         return d
 
-    def _finishes(self, grid: torch.Tensor, bounds, q: torch.Tensor, goal: torch.Tensor, clear: float) -> bool:
-        """Whether a candidate stalled at q (clear so far) ends on the straight segment to the goal: within
-        `finish` radians of it, and the segment clear of the grid at sub-steps of at most FINISH_RESOLUTION."""
+    def _near_margin(self, grid: torch.Tensor, bounds, goal: torch.Tensor) -> float:
+        """The clearance a segment within `finish` radians of the goal must keep: `margin`, or less where the goal
+        itself reads less (its reading less `goal_slack`): a goal close to a surface is reached close to it."""
+        if self.cfg.goal_slack is None:
+            return self.cfg.margin
+        at_goal = float(self._clearance(grid, bounds, goal[None], goal[None], 1)[0])
+        return min(self.cfg.margin, at_goal - self.cfg.goal_slack) if np.isfinite(at_goal) else self.cfg.margin
+
+    def _slack(self, grid: torch.Tensor, bounds, q0: torch.Tensor, q1: torch.Tensor, goal: torch.Tensor,
+               near: float) -> np.ndarray:
+        """(R,) each segment's clearance less what it must keep: `near` where both its ends lie within `finish`
+        radians of the goal, else `margin` (above 0: clear)."""
+        close = torch.maximum((q0 - goal).norm(dim=1), (q1 - goal).norm(dim=1)) < self.cfg.finish
+        keep = np.where(close.cpu().numpy(), near, self.cfg.margin)
+        return self._clearance(grid, bounds, q0, q1).double().cpu().numpy() - keep
+
+    def _finishes(self, grid: torch.Tensor, bounds, q: torch.Tensor, goal: torch.Tensor, slack: float,
+                  near: float) -> bool:
+        """Whether a candidate stalled at q (clear so far: `slack` > 0) ends on the straight segment to the goal:
+        within `finish` radians of it, and the segment's clearance above `near` at sub-steps of at most
+        FINISH_RESOLUTION."""
         dist = float((goal - q).norm())
-        if self.cfg.finish <= 0 or dist > self.cfg.finish or clear <= self.cfg.margin:
+        if self.cfg.finish <= 0 or dist > self.cfg.finish or slack <= 0:
             return False
         steps = max(1, int(np.ceil(dist / FINISH_RESOLUTION)))
-        return float(self._clearance(grid, bounds, q[None], goal[None], steps)[0]) > self.cfg.margin
+        return float(self._clearance(grid, bounds, q[None], goal[None], steps)[0]) > near
 
     def _grid_env(self, problem, grids) -> EnvBatch:
         """The one-scene `EnvBatch` both the policy and the check read: the scene's exact anchor grid, or
@@ -203,7 +227,8 @@ class CheckedPolicy:
         shake = torch.Generator().manual_seed(zlib.crc32(f"{cfg.seed}/noise/{problem.name or ''}".encode()))
         q = start.repeat(K, 1)
         path = [q.double().cpu().numpy()]
-        clear = self._clearance(grid, bounds, q, q).double().cpu().numpy()
+        near = self._near_margin(grid, bounds, goal)
+        clear = self._slack(grid, bounds, q, q, goal, near)  # clearance less what it must keep: > 0 is clear
         done = np.zeros(K, dtype=bool)
         reached = np.zeros(K, dtype=bool)
         finished = np.zeros(K, dtype=bool)  # reached by the straight segment after a stall
@@ -221,7 +246,7 @@ class CheckedPolicy:
                     far = noisy & running & ((q_next - goal).norm(dim=1) > cfg.finish)
                     kick = cfg.step_noise * torch.randn(K, len(start), generator=shake, dtype=torch.float64)
                     q_next = torch.where(far[:, None], clamp_to_limits(robot, q_next + kick.to(q_next)), q_next)
-                clear = np.minimum(clear, self._clearance(grid, bounds, q, q_next).double().cpu().numpy())
+                clear = np.minimum(clear, self._slack(grid, bounds, q, q_next, goal, near))
                 moved = (q_next - q).norm(dim=1).cpu().numpy()
                 q = q_next
                 q_np = q.double().cpu().numpy()
@@ -236,9 +261,9 @@ class CheckedPolicy:
                         done[k], reached[k], ends[k] = True, True, step + 1
                     elif (still[k] >= cfg.stall_steps and hg[k]) or not np.isfinite(q_np[k]).all():
                         done[k], ends[k] = True, step + 1
-                        if still[k] >= cfg.stall_steps and self._finishes(grid, bounds, q[k], goal, clear[k]):
+                        if still[k] >= cfg.stall_steps and self._finishes(grid, bounds, q[k], goal, clear[k], near):
                             reached[k] = finished[k] = True
-                winners = np.flatnonzero(reached & (clear > cfg.margin))
+                winners = np.flatnonzero(reached & (clear > 0))
                 if len(winners):
                     chosen = int(winners[0])
                     break

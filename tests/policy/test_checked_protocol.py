@@ -92,7 +92,8 @@ def test_a_candidate_below_the_margin_is_never_answered_as_clear(panda, problem,
     extent, plain = _plain_extent(panda, problem, d)
     b = 0.02 - extent
     assert _clearance(panda, plain, d, b) == pytest.approx(0.02)
-    checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=MARGIN))
+    # the margin everywhere (goal_slack: null); near a goal that reads less, see the goal_slack test below
+    checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=MARGIN, goal_slack=None))
     answer = checked.plan(problem, grids=_field(d, b)).trajectory
     got = _clearance(panda, answer, d, b)
     assert checked.chosen["plain"] == 0, f"the plain rollout (clearance 0.02 < margin {MARGIN}) was taken as clear"
@@ -136,6 +137,30 @@ def blocked(panda):
     scene = Scene("boxed", (Box("box", (0.25, 0.25, 0.25), Pose(tuple(float(v) for v in centre))),))
     far = Box("far", (0.05, 0.05, 0.05), Pose((-0.9, -0.9, 0.1)))  # a scene's SDF needs one obstacle
     return Problem(scene, start, goal, name="boxed", robot="panda"), Scene("boxed-missed", (far,))
+
+
+def test_near_the_goal_clear_means_no_nearer_than_the_goal_itself(panda, problem):
+    """A goal close to a surface: along +y the plain rollout reads least at its end, set to 0.02 m, below the
+    margin (the goal itself reads a little less), and above the margin wherever it is `finish` or more from the
+    goal. With `goal_slack` (the default)
+    the plain rollout is clear: near the goal it must keep the goal's own reading less the slack, not the
+    margin. With `goal_slack: null` it is not. Far from the goal the margin still holds: 4 cm lower, the same
+    rollout is unclear."""
+    d = (0.0, 1.0, 0.0)
+    extent, plain = _plain_extent(panda, problem, d)
+    b = 0.02 - extent
+    at_goal = _clearance(panda, problem.q_goal[None], d, b)  # the rollout stops within 2 cm of it, reading 0.02 m
+    assert 0.005 < at_goal <= 0.02 + 1e-9, f"the goal must read less than the rollout and more than the slack: {at_goal}"
+    far = plain[: int(np.argmax(np.linalg.norm(plain - problem.q_goal, axis=1) < CheckConfig().finish))]
+    assert len(far) > 1 and _clearance(panda, far, d, b) > MARGIN + 0.03
+    outcomes = {}
+    for label, slack, shift in (("slack", 0.005, 0.0), ("margin only", None, 0.0), ("lower", 0.005, 0.04)):
+        checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=1, margin=MARGIN, goal_slack=slack))
+        checked.plan(problem, grids=_field(d, b - shift))
+        outcomes[label] = "plain" if checked.chosen["plain"] else "unclear" if checked.chosen["unclear"] else "?"
+    assert outcomes == {"slack": "plain", "margin only": "unclear", "lower": "unclear"}, outcomes
+    with pytest.raises(ValueError, match="goal_slack"):
+        CheckConfig(goal_slack=-0.01)
 
 
 def test_when_no_candidate_is_clear_the_one_with_the_most_clearance_is_answered(panda, problem):

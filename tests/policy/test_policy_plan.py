@@ -295,17 +295,20 @@ def test_checked_planner_clearance_matches_an_independent_trilinear_oracle(run_d
 
 
 def test_checked_planner_finishes_a_stall_only_on_a_clear_short_segment(run_dir):
-    """The straight finish after a stall: taken within `finish` radians when the grid is clear along the
-    segment; refused beyond that distance, through an obstacle, or after a candidate was already unclear."""
+    """The straight finish after a stall: taken within `finish` radians when the grid along the segment reads
+    above what a segment near the goal must keep (`near`); refused beyond that distance, through an obstacle,
+    below `near`, or after a candidate was already unclear (its slack at most 0)."""
     checked = load_policy(run_dir, check={"finish": 0.5, "margin": 0.01})
     bounds, n = checked.policy.system.bounds, checked.n_e
-    free, solid = torch.full((n, n, n), 0.5), torch.full((n, n, n), -0.5)
+    free, solid, thin = (torch.full((n, n, n), v) for v in (0.5, -0.5, 0.005))
     goal = checked.robot.home.to(checked.robot.dtype)
-    near, far = goal + 0.1, goal + 0.4  # joint-space distances 0.26 and 1.06 rad
-    assert checked._finishes(free.to(goal.dtype), bounds, near, goal, clear=0.2)
-    assert not checked._finishes(free.to(goal.dtype), bounds, far, goal, clear=0.2)
-    assert not checked._finishes(solid.to(goal.dtype), bounds, near, goal, clear=0.2)
-    assert not checked._finishes(free.to(goal.dtype), bounds, near, goal, clear=0.005)
+    close, far = goal + 0.1, goal + 0.4  # joint-space distances 0.26 and 1.06 rad
+    assert checked._finishes(free.to(goal.dtype), bounds, close, goal, slack=0.2, near=0.01)
+    assert not checked._finishes(free.to(goal.dtype), bounds, far, goal, slack=0.2, near=0.01)
+    assert not checked._finishes(solid.to(goal.dtype), bounds, close, goal, slack=0.2, near=0.01)
+    assert not checked._finishes(free.to(goal.dtype), bounds, close, goal, slack=-0.005, near=0.01)
+    assert not checked._finishes(thin.to(goal.dtype), bounds, close, goal, slack=0.2, near=0.01)
+    assert checked._finishes(thin.to(goal.dtype), bounds, close, goal, slack=0.2, near=0.0)
 
 
 def test_checked_planner_refuses_bad_settings(run_dir):

@@ -18,8 +18,9 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["REPO_ROOT", "cache_dir", "check_name", "write_cache_file", "conf_dir", "config_path", "env_folder", "file_sha256", "find_checkpoint",
-           "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "source_checkout", "user_config"]
+__all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "config_path", "env_folder", "file_sha256", "find_checkpoint",
+           "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "source_checkout", "user_config",
+           "write_cache_file"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PACKAGED_CONF = Path(__file__).resolve().parent / "_conf"  # where a wheel carries conf/ (see setup.py)

@@ -1,26 +1,25 @@
 """samp+check: several rollouts of a step policy in one batch, and the one the scene's anchor grid says is
 clear (after Neural MP's sample-and-check; docs/design.md section 4).
 
-Candidate 0 is the plain rollout. Candidates 1 to `noisy` are the policy's own rollouts with noise: they
-head for the goal from the start, and each step gets Gaussian noise of `step_noise` radians per joint
-(seeded by the problem's name) while the candidate is farther than `finish` radians from the goal and within
-the first third of `max_steps`, so they explore around the plain rollout's path (as Neural MP samples its own
-rollouts). Every other candidate first heads for a via configuration drawn around the midpoint of start
-and goal (normal, `spread` radians per joint, seeded by the problem's name), and from there (within
-`via_reach` radians of it, or after a third of `max_steps`) for the goal. All candidates step
-together, one policy call per step. After each step the new segment of every candidate is checked against
-the anchor grid: the grid's SDF, trilinear at the robot points posed at `substeps` configurations along the
-segment, must stay above `margin` metres (a candidate's clearance is the smallest value read so far). Goals
-often lie close to surfaces (a target in a cabinet), where the grid reads less than the margin at the goal
-itself: where a segment lies within `finish` radians of the goal, it must only keep the goal's own reading
-less `goal_slack` when that is lower. A candidate that stalls within `finish` radians of the goal configuration ends on the straight segment to it
+Candidate 0 is the plain rollout. Candidates 1 to `noisy` are the policy's own rollouts with noise: they head
+for the goal from the start, and each step gets Gaussian noise of `step_noise` radians per joint (seeded by
+the problem's name) while the candidate is farther than `finish` radians from the goal and within the first
+third of `max_steps`, so they explore around the plain rollout's path (as Neural MP samples its own rollouts).
+Every other candidate first heads for a via configuration drawn around the midpoint of start and goal (normal,
+`spread` radians per joint, seeded by the problem's name), and from there (within `via_reach` radians of it,
+or after a third of `max_steps`) for the goal. All candidates step together, one policy call per step. After
+each step the new segment of every candidate is checked against the anchor grid: the grid's SDF, trilinear at
+the robot points posed at `substeps` configurations along the segment, must stay above `margin` metres (a
+candidate's clearance is the smallest value read so far). Goals often lie close to surfaces (a target in a
+cabinet), where the grid reads less than the margin at the goal itself: where a segment lies within `finish`
+radians of the goal, it must only keep the goal's own reading less `goal_slack` when that is lower. A
+candidate that stalls within `finish` radians of the goal configuration ends on the straight segment to it
 when the grid says that segment is clear too (the learned policy tends to stop a few centimetres short of
-goals close to surfaces). The first candidate to reach the goal with a clear record
-is the answer. A candidate that fails the check steps on to the goal all the same, and when none reaches
-it clear, the answer is the one that reached it with the most clearance (the plain rollout on ties, or
-when none reached it).
+goals close to surfaces). The first candidate to reach the goal with a clear record is the answer. A candidate
+that fails the check steps on to the goal all the same, and when none reaches it clear, the answer is the one
+that reached it with the most clearance (the plain rollout on ties, or when none reached it).
 
-The check reads the same anchor grid the policy reads, so it costs grid samples, not collision queries:
+The check reads the same anchor grid the policy reads, so obstacles cost grid samples, not collision queries:
 the scene's exact SDF at n_e anchors by default, or the grid the evaluation's section hands to `plan`
 (`grids`, a `(problem, n_e) -> grid` source): with `grid_source=reconstructed` both the policy and the check
 see the grid reconstructed from the cameras, never the exact one. `n_e` gives the check a grid of its own

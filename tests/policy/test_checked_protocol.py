@@ -142,10 +142,9 @@ def blocked(panda):
 def test_near_the_goal_clear_means_no_nearer_than_the_goal_itself(panda, problem):
     """A goal close to a surface: along +y the plain rollout reads least at its end, set to 0.02 m, below the
     margin (the goal itself reads a little less), and above the margin wherever it is `finish` or more from the
-    goal. With `goal_slack` (the default)
-    the plain rollout is clear: near the goal it must keep the goal's own reading less the slack, not the
-    margin. With `goal_slack: null` it is not. Far from the goal the margin still holds: 4 cm lower, the same
-    rollout is unclear."""
+    goal. With `goal_slack` (the default) the plain rollout is clear: near the goal it must keep the goal's own
+    reading less the slack, not the margin. With `goal_slack: null` it is not. Far from the goal the margin
+    still holds: 4 cm lower, the same rollout is unclear."""
     d = (0.0, 1.0, 0.0)
     extent, plain = _plain_extent(panda, problem, d)
     b = 0.02 - extent

@@ -20,7 +20,7 @@ from pathlib import Path
 
 __all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "config_path", "env_folder", "file_sha256", "find_checkpoint",
            "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "source_checkout", "user_config",
-           "write_cache_file"]
+           "unique_tmp", "write_cache_file"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PACKAGED_CONF = Path(__file__).resolve().parent / "_conf"  # where a wheel carries conf/ (see setup.py)
@@ -122,11 +122,16 @@ def cache_dir(*parts: str) -> Path:
     return path
 
 
+def unique_tmp(path: Path) -> Path:
+    """A temporary name beside `path` that no other process uses (a file several processes write)."""
+    return path.with_name(f"{path.name}.{os.getpid()}-{time.time_ns()}.tmp")
+
+
 def write_cache_file(path: Path, write) -> None:
-    """Write one cache entry atomically: `write(f)` fills a binary file under a temporary name that no other
-    process uses, which then replaces `path`. Workers that build the same entry at once (the robot's points
-    in each generation worker) each put identical bytes in place; none loses its temporary to another."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}-{time.time_ns()}.tmp")
+    """Write one cache entry atomically: `write(f)` fills a binary file under a `unique_tmp` name, which then
+    replaces `path`. Workers that build the same entry at once (the robot's points in each generation worker)
+    each put identical bytes in place; none loses its temporary to another."""
+    tmp = unique_tmp(path)
     try:
         with open(tmp, "wb") as f:
             write(f)

@@ -144,7 +144,7 @@ PROTOCOL_MUTANTS = [
            "the overlap check lets validation scenes through"),
     Mutant("P04", "samp/eval/benchmark.py", "if section.name not in HELD_OUT_SECTIONS and not section.benchmark:",
            "if section.name not in HELD_OUT_SECTIONS:", PROTOCOL, "benchmark sections are never checked for seen scenes"),
-    Mutant("P05", "samp/policy/checked.py", "winners = np.flatnonzero(reached & (clear > 0))",
+    Mutant("P05", "samp/policy/checked.py", "winners = np.flatnonzero(reached & (slack > 0))",
            "winners = np.flatnonzero(reached)", CHECKED,
            "samp+check accepts a candidate whose clearance is below its margin"),
     Mutant("P06", "samp/policy/checked.py", ".view(len(q0), -1).amin(dim=1)", ".view(len(q0), -1).mean(dim=1)",

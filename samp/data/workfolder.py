@@ -17,12 +17,12 @@ into it, what is left over from a killed run, and which scene files count as fin
 from __future__ import annotations
 
 import json
-import os
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
 from samp.data.merging import _create, _describe, _read, _stale, _take_over, held, lock_content
+from samp.paths import unique_tmp
 
 __all__ = ["SIDECAR", "GenerationBusy", "clear_stale", "damaged_scene", "generation_lock", "removed_on_error", "unfinished", "unique_tmp"]
 
@@ -151,11 +151,6 @@ def removed_on_error(tmp: Path, *also: Path):
         if isinstance(err, OSError) and err.filename is None:
             raise OSError(err.errno, err.strerror, str(tmp)) from None
         raise
-
-
-def unique_tmp(path: Path) -> Path:
-    """A temporary name beside `path` that no other process uses (a file several shards write)."""
-    return path.with_name(f"{path.name}.{os.getpid()}-{time.time_ns()}.tmp")
 
 
 def write_json(path: Path, data: dict, shared: bool = False) -> None:

@@ -17,7 +17,8 @@ candidate that stalls within `finish` radians of the goal configuration ends on 
 when the grid says that segment is clear too (the learned policy tends to stop a few centimetres short of
 goals close to surfaces). The first candidate to reach the goal with a clear record is the answer. A candidate
 that fails the check steps on to the goal all the same, and when none reaches it clear, the answer is the one
-that reached it with the most clearance (the plain rollout on ties, or when none reached it).
+that reached it with the most slack, its least clearance less what each segment had to keep (the plain rollout
+on ties, or when none reached it).
 
 The check reads the same anchor grid the policy reads, so obstacles cost grid samples, not collision queries:
 the scene's exact SDF at n_e anchors by default, or the grid the evaluation's section hands to `plan`
@@ -227,7 +228,7 @@ class CheckedPolicy:
         q = start.repeat(K, 1)
         path = [q.double().cpu().numpy()]
         near = self._near_margin(grid, bounds, goal)
-        clear = self._slack(grid, bounds, q, q, goal, near)  # clearance less what it must keep: > 0 is clear
+        slack = self._slack(grid, bounds, q, q, goal, near)  # so far, the least clearance less what it must keep
         done = np.zeros(K, dtype=bool)
         reached = np.zeros(K, dtype=bool)
         finished = np.zeros(K, dtype=bool)  # reached by the straight segment after a stall
@@ -245,7 +246,7 @@ class CheckedPolicy:
                     far = noisy & running & ((q_next - goal).norm(dim=1) > cfg.finish)
                     kick = cfg.step_noise * torch.randn(K, len(start), generator=shake, dtype=torch.float64)
                     q_next = torch.where(far[:, None], clamp_to_limits(robot, q_next + kick.to(q_next)), q_next)
-                clear = np.minimum(clear, self._slack(grid, bounds, q, q_next, goal, near))
+                slack = np.minimum(slack, self._slack(grid, bounds, q, q_next, goal, near))
                 moved = (q_next - q).norm(dim=1).cpu().numpy()
                 q = q_next
                 q_np = q.double().cpu().numpy()
@@ -260,9 +261,9 @@ class CheckedPolicy:
                         done[k], reached[k], ends[k] = True, True, step + 1
                     elif (still[k] >= cfg.stall_steps and hg[k]) or not np.isfinite(q_np[k]).all():
                         done[k], ends[k] = True, step + 1
-                        if still[k] >= cfg.stall_steps and self._finishes(grid, bounds, q[k], goal, clear[k], near):
+                        if still[k] >= cfg.stall_steps and self._finishes(grid, bounds, q[k], goal, slack[k], near):
                             reached[k] = finished[k] = True
-                winners = np.flatnonzero(reached & (clear > 0))
+                winners = np.flatnonzero(reached & (slack > 0))
                 if len(winners):
                     chosen = int(winners[0])
                     break
@@ -270,9 +271,9 @@ class CheckedPolicy:
                     break
         if chosen is not None:
             self.chosen["plain" if chosen == 0 else "noisy" if chosen <= cfg.noisy else "via"] += 1
-        else:  # none reached the goal clear: the one that reached it with the most clearance (plain on ties)
+        else:  # none reached the goal clear: the one that reached it with the most slack (plain on ties)
             reachers = np.flatnonzero(reached)
-            chosen = int(reachers[np.argmax(clear[reachers])]) if len(reachers) else 0
+            chosen = int(reachers[np.argmax(slack[reachers])]) if len(reachers) else 0
             self.chosen["unclear" if reached[chosen] else "unreached"] += 1
         end = ends[chosen] if ends[chosen] >= 0 else len(path) - 1
         trajectory = np.stack([p[chosen] for p in path[:end + 1]]

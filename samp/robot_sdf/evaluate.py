@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from samp.paths import write_cache_file
+from samp.paths import cache_dir, write_cache_file
 from samp.robot_sdf.samples import link_signed_distance
 
 __all__ = ["EVAL_FORMAT", "PAPER_TABLE_III", "SDFEvalConfig", "error_metrics", "evaluate_methods",
@@ -93,8 +93,6 @@ def _cached(path: Path, build) -> dict[str, np.ndarray]:
 
 def heldout_link_set(robot, centres, scales, cfg: SDFEvalConfig) -> dict[str, np.ndarray]:
     """points (P, 3) in their link frames [m], link (P,), sdf (P,) exact [m]."""
-    from samp.paths import cache_dir
-
     centres, scales = np.asarray(centres, dtype=np.float64), np.asarray(scales, dtype=np.float64)
 
     def build():
@@ -138,8 +136,6 @@ def robot_signed_distance(robot, points: np.ndarray, pose: np.ndarray) -> np.nda
 
 def heldout_robot_set(robot, centres, scales, cfg: SDFEvalConfig) -> dict[str, np.ndarray]:
     """q (C, n) radians, points (C, K, 3) base frame, sdf (C, K) exact [m]."""
-    from samp.paths import cache_dir
-
     centres, scales = np.asarray(centres, dtype=np.float64), np.asarray(scales, dtype=np.float64)
 
     def build():

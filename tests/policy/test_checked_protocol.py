@@ -163,19 +163,21 @@ def test_near_the_goal_clear_means_no_nearer_than_the_goal_itself(panda, problem
 
 
 def test_when_no_candidate_is_clear_the_one_with_the_most_clearance_is_answered(panda, problem):
-    """With a margin no candidate can keep (1 m), none is clear: the answer is the candidate that reached the goal
-    with the most clearance: by the oracle (the candidates that reach it, rebuilt here) the largest, here a
-    detour's, which stays farther from the zero level than the plain rollout. With every candidate the plain
-    rollout (noisy ones without noise), the plain rollout."""
+    """With a margin no candidate can keep (1 m, everywhere: no goal slack, so the slack ranks as the clearance),
+    none is clear: the answer is the candidate that reached the goal with the most clearance: by the oracle
+    (the candidates that reach it, rebuilt here) the largest, here a detour's, which stays farther from the zero
+    level than the plain rollout. With every candidate the plain rollout (noisy ones without noise), the plain
+    rollout."""
     d = (0.0, -1.0, 0.0)
     extent, plain = _plain_extent(panda, problem, d)
     b = 0.02 - extent
-    checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=1.0))
+    checked = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=8, margin=1.0, goal_slack=None))
     answer = checked.plan(problem, grids=_field(d, b)).trajectory
     assert checked.chosen == {"plain": 0, "noisy": 0, "via": 0, "unclear": 1, "unreached": 0}, checked.chosen
     best = max(_clearance(panda, candidate, d, b) for candidate in _candidates(panda, problem, 8))
     assert _clearance(panda, answer, d, b) == pytest.approx(best, abs=1e-4) and best > 0.02 + 0.01
-    alike = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=4, noisy=3, step_noise=0.0, margin=1.0))
+    alike = CheckedPolicy(LinePolicy(panda), CheckConfig(candidates=4, noisy=3, step_noise=0.0, margin=1.0,
+                                                         goal_slack=None))
     assert np.array_equal(alike.plan(problem, grids=_field(d, b)).trajectory, plain), "ties go to the plain rollout"
 
 

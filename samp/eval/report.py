@@ -183,7 +183,8 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
     for section in sections:
         results = _evaluate_section(planner, section, cfg, expert)
         straight = results.get("straight") or results[planner.name]
-        for group, rows in _group_rows(section, _hard(straight["records"])).items():
+        grouped = _group_rows(section, _hard(straight["records"]))
+        for group, rows in grouped.items():
             subset = "" if group == section.name else _subset(group, section.name)
             groups[group] = {"source": section.source + (f"; {subset}" if subset else ""), "problems": len(rows),
                              "section": section.name}
@@ -192,8 +193,13 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
                 if group != section.name and "throughput" in m:  # batches mix the subsets: only the section's holds
                     m["throughput"] = None
                 blocks.setdefault(name, {})[group] = m
-        for name, result in results.items():
-            records += [{**r, "group": section.name} for r in result["records"]]
+        member: dict[int, list[str]] = {}
+        for group, rows in grouped.items():
+            for i in rows:
+                member.setdefault(i, []).append(group)
+        for name, result in results.items():  # "groups": every group a problem counts in, for intervals over runs
+            records += [{**r, "group": section.name, "groups": member.get(i, [section.name])}
+                        for i, r in enumerate(result["records"])]
         problems += section.problems
         results_all.append(results)
         if section.reconstruction is not None:

@@ -3,8 +3,8 @@
 - learning curves: a metric from each run's metrics.csv against the epoch, one line per value of a key
   (the mean over the runs sharing it), as the paper's figure of success and reach rate per anchor size;
 - bars: final metrics (run.json) per value of a key, across a sweep: the mean over the runs, its error bar
-  the Wilson 95 % interval of their problems pooled where the runs say how many (rates of an evaluation),
-  else the min and max over the runs;
+  the 95 % interval over the problems they were evaluated on (a bootstrap, `samp.runs.intervals`) where
+  their records give it (rates of an evaluation), else the min and max over the runs;
 - a run's summary page: its losses, and its rates per planner and group of problems with their Wilson
   95 % intervals.
 """
@@ -16,8 +16,8 @@ from pathlib import Path
 
 from samp.eval.metrics import metric_keys, wilson_interval
 from samp.names import EVAL_PREFIX
-from samp.runs.protocol import BENCHMARK, GROUPS, HARD_BENCHMARK, hard, interval_keys, label
-from samp.runs.registry import Run, check_key, pooled
+from samp.runs.protocol import BENCHMARK, GROUPS, HARD_BENCHMARK, hard, interval_keys, is_rate, label
+from samp.runs.registry import Run, check_key, over_problems
 from samp.runs.tables import fmt
 
 __all__ = ["CURVE_METRICS", "RATES", "plot_bars", "plot_curves", "plot_run_summary"]
@@ -81,14 +81,14 @@ def plot_curves(runs: list[Run], by: str, metrics: list[str], out: Path, x: str 
 
 
 def _errors(value: float, low: float, high: float) -> tuple[float, float]:
-    """Error bar lengths below and above `value` for the range [low, high] (never negative: a pooled
-    interval is about the pooled rate, which may sit a little off the mean of the runs' rates)."""
+    """Error bar lengths below and above `value` for the range [low, high] (never negative: a percentile
+    interval need not be centred on the mean)."""
     return max(0.0, value - low), max(0.0, high - value)
 
 
 def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
-    """One panel per metric: a bar per value of `by`, the mean over its runs. Error bars: the Wilson 95 %
-    interval of all its runs' problems pooled when every bar has one (a rate, in percent), else the min
+    """One panel per metric: a bar per value of `by`, the mean over its runs. Error bars: the 95 %
+    interval over its runs' problems (`samp.runs.intervals`) when every bar has one (a rate, in percent), else the min
     and max over its runs; the y label says which."""
     groups = _groups(runs, by)
     for m in metrics:
@@ -96,10 +96,10 @@ def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
     plt, fig, axes = _figure(len(metrics))
     labels = [fmt(v) for v in groups]
     for ax, metric in zip(axes, metrics):
-        intervals = [pooled(members, metric) for members in groups.values()]
+        intervals = [over_problems(members, metric) for members in groups.values()]
         wilson = any(intervals) and all(i is not None for i, members in zip(intervals, groups.values())
                                         if any(r.has(metric) for r in members))
-        scale = 100.0 if wilson else 1.0
+        scale = 100.0 if is_rate(metric) else 1.0
         means, errors = [], []
         for members, interval in zip(groups.values(), intervals):
             vals = [float(r.get(metric)) for r in members if isinstance(r.get(metric), (int, float))]
@@ -112,7 +112,8 @@ def plot_bars(runs: list[Run], by: str, metrics: list[str], out: Path) -> Path:
         if sum(map(len, labels)) > 6 * len(labels):  # names rather than numbers: slanted, so they do not overlap
             ax.tick_params(axis="x", labelrotation=30)
             plt.setp(ax.get_xticklabels(), ha="right", rotation_mode="anchor")
-        ax.set_ylabel("mean of runs [%]; bars: pooled Wilson 95 %" if wilson else "mean of runs; bars: min to max")
+        unit = " [%]" if scale == 100.0 else ""
+        ax.set_ylabel(f"mean of runs{unit}; bars: " + ("95 % over problems" if wilson else "min to max"))
         ax.set_title(metric)
         ax.grid(axis="y", alpha=0.3)
     return save_figure(plt, fig, out)

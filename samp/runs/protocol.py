@@ -21,12 +21,12 @@ run.json holds the same numbers flat, `eval/<planner>/<group>/<metric>` (`eval_k
 
 from __future__ import annotations
 
-from samp.eval.metrics import metric, metric_keys, wilson_interval
+from samp.eval.metrics import metric, metric_keys
 from samp.eval.report import PROTOCOL as EVALUATION_PROTOCOL
 from samp.names import EVAL_PREFIX
 
 __all__ = ["BENCHMARK", "BENCHMARK_REF", "BLOCKS", "CURRENT", "GROUPS", "HARD_BENCHMARK", "PROTOCOL", "SOLUTION_TIME_B1",
-           "STEP_TIME_B1", "THROUGHPUT", "eval_key", "hard", "interval_keys", "is_rate", "label", "pooled_interval",
+           "STEP_TIME_B1", "THROUGHPUT", "eval_key", "hard", "interval_keys", "is_rate", "label",
            "protocol_of"]
 
 CURRENT = EVALUATION_PROTOCOL  # what `samp.eval.report` writes now
@@ -101,11 +101,3 @@ def label(protocol: int | None, short: bool = False) -> str:
         return str(protocol) if short else f"{protocol}: unknown to this version of samp (it knows {sorted(LABELS)})"
     brief, line = LABELS[protocol]
     return brief if short else f"{brief}: {line}"
-
-
-def pooled_interval(counts: list[tuple[float, int]]) -> tuple[float, float] | None:
-    """The Wilson 95 % interval of the problems of several evaluations pooled: `counts` holds (rate, problems)
-    per evaluation, its successes round(rate * problems); None without problems."""
-    hits = sum(round(rate * n) for rate, n in counts)
-    total = sum(n for _, n in counts)
-    return None if not total else wilson_interval(hits, total)

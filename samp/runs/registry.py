@@ -21,12 +21,13 @@ from samp.provenance import process_gone
 from samp.names import TRACKING_ARTIFACTS_DIR
 from samp.runs.folder import METRICS_CSV, RUN_JSON, RunFolder
 from samp.runs.lineage import flatten
-from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rate, pooled_interval, protocol_of
+from samp.runs.protocol import BLOCKS, PROTOCOL, eval_key, interval_keys, is_rate, protocol_of
 
-__all__ = ["DIED", "EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "pooled", "scan_runs",
-           "varying_keys"]
+__all__ = ["DIED", "EVAL_METRICS", "Run", "check_key", "find_runs", "load_run", "matches", "over_problems",
+           "scan_runs", "varying_keys"]
 
 EVAL_METRICS = Path("eval") / "metrics.json"  # written by `python -m samp.eval` (samp.eval.names)
+EVAL_PROBLEMS = Path("eval") / "problems.jsonl"  # its per-problem records, beside it
 DIED = "died"  # shown for a run recorded running whose process is gone (`Run.status`)
 HIDDEN = ("config", "metrics", "packages", "traceback", "command", "starts", "loggers", "files_sha256")  # not keys of their own
 
@@ -125,6 +126,37 @@ class Run:
                   ((report.get("groups") or {}).get(group) or {}).get("problems"), listed.get(group))
         return next((int(n) for n in counts if isinstance(n, int) and not isinstance(n, bool)), None)
 
+    @cached_property
+    def _problem_records(self) -> list[dict]:
+        """eval/problems.jsonl, without the bulky per-step fields; empty when the run has none."""
+        path = self.path / EVAL_PROBLEMS
+        if not path.is_file():
+            return []
+        bulky = ("trajectory", "step_times", "step_times_b1", "q_start", "q_goal", "first_collision_state")
+        with open(path) as f:
+            return [{k: v for k, v in json.loads(line).items() if k not in bulky} for line in f if line.strip()]
+
+    def outcomes(self, key: str) -> dict[str, float] | None:
+        """Per problem (by its id), the 0/1 outcome behind the rate `key` (`eval/<planner>/<group>/<rate>`), from
+        eval/problems.jsonl; None when the run's records cannot say (no such file, a group they do not list:
+        evaluations before the records named their groups knew only the sections)."""
+        from samp.eval.config import tolerance_label
+        from samp.eval.metrics import metric
+
+        parts, report = eval_key(key), self.evaluation or {}
+        if parts is None or not is_rate(key) or not self._problem_records:
+            return None
+        planner, group, name = parts
+        rate, _, tol = name.partition("@")
+        tol = tol or tolerance_label(float((report.get("config") or {}).get("position_tolerance", 0.02)))
+        m = metric(rate)
+        out = {}
+        for r in self._problem_records:
+            groups = r.get("groups") or [r.get("group")]
+            if r.get("planner") == planner and group in groups:
+                out[str(r.get("problem"))] = float(bool(m.value(r, tol)))
+        return out or None
+
     def curves(self) -> list[dict]:
         """metrics.csv as rows of {column: float} (empty cells left out)."""
         import csv
@@ -183,13 +215,18 @@ def matches(run: Run, filters: list[str]) -> bool:
     return True
 
 
-def pooled(runs: list[Run], key: str) -> tuple[float, float] | None:
-    """The Wilson 95 % interval of the rate `key` over the problems of all `runs` together; None unless `key`
-    is a rate and every run has it and its problem count."""
-    counts = [(r.metrics.get(key), r.problems(key)) for r in runs]
-    if not runs or not is_rate(key) or any(not isinstance(rate, (int, float)) or n is None for rate, n in counts):
+def over_problems(runs: list[Run], key: str) -> tuple[float, float] | None:
+    """The 95 % interval of the rate `key` over several runs (mean over runs), resampling the problems they were
+    evaluated on (`samp.runs.intervals`); one run: the Wilson interval it recorded. None when a run's records
+    cannot give its per-problem outcomes, or `key` is not a rate."""
+    from samp.runs.intervals import problem_bootstrap
+
+    if not runs or not is_rate(key):
         return None
-    return pooled_interval([(float(rate), n) for rate, n in counts])
+    if len(runs) == 1:
+        return runs[0].interval(key)
+    outcomes = [r.outcomes(key) for r in runs]
+    return None if any(o is None for o in outcomes) else problem_bootstrap(outcomes)
 
 
 def varying_keys(runs: list[Run], keys: list[str]) -> list[str]:

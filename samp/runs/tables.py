@@ -3,7 +3,8 @@ side-by-side comparisons. A table is (header, rows) of strings; `write_table` pu
 
 A rate whose Wilson 95 % interval the runs recorded beside it (protocol 2, `samp.runs.protocol`) shows in
 percent with the interval, "93.3 [84.1, 97.4]", its row or column marked "[%]"; over several runs,
-"mean ± std [interval]", the interval that of all their problems pooled. Its `_ci_low` and `_ci_high` keys
+"mean ± std [interval]": the std is the runs' spread, the interval a bootstrap over the problems they were
+evaluated on (`samp.runs.intervals`), left out for runs whose records cannot give it. Its `_ci_low` and `_ci_high` keys
 do not get rows of their own.
 """
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 from samp.eval.report import benchmark_refs
 from samp.runs.protocol import BENCHMARK, BLOCKS, HARD_BENCHMARK, PROTOCOL, eval_key, interval_keys, label
-from samp.runs.registry import Run, check_key, pooled, varying_keys
+from samp.runs.registry import Run, check_key, over_problems, varying_keys
 from samp.tracking import tracked_at
 
 __all__ = ["DASH", "compare_table", "default_metrics", "fmt", "group_table", "list_table", "markdown", "percent",
@@ -156,20 +157,20 @@ def default_metrics(runs: list[Run], limit: int = 8) -> list[str]:
 
 
 def _rate_over(runs: list[Run], key: str) -> str:
-    """A rate over `runs` in percent: the mean ± std of their rates, and the Wilson interval of all their
-    problems pooled (one run: its own interval) when every run says how many problems it had."""
+    """A rate over `runs` in percent: the mean ± std of their rates, and the bootstrap interval over their
+    problems (one run: its own Wilson interval) when every run's records give its per-problem outcomes."""
     values = [float(v) for v in (r.get(key) for r in runs) if isinstance(v, (int, float)) and not isinstance(v, bool)]
     if not values:
         return DASH
     mean = sum(values) / len(values)
     std = math.sqrt(sum((v - mean) ** 2 for v in values) / len(values)) if len(values) > 1 else None
-    interval = pooled(runs, key) or (runs[0].interval(key) if len(runs) == 1 else None)
+    interval = over_problems(runs, key)
     return percent(mean, interval, std)
 
 
 def group_table(runs: list[Run], by: str, metrics: list[str]) -> tuple[list[str], list[list[str]]]:
     """One row per value of `by`: how many runs, their statuses, and each metric's mean ± std over them
-    (rates with recorded intervals in percent, with the pooled interval). Warns on stderr when the runs
+    (rates with recorded intervals in percent, with the interval over their problems). Warns on stderr when the runs
     were evaluated under different protocols."""
     check_key(runs, by, "--by key")
     for m in metrics:

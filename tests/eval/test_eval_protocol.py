@@ -110,6 +110,15 @@ def test_the_hard_subset_is_where_the_straight_line_collides(report):
         if hard:  # the line, rolled out as "the planner", collides on exactly those problems
             assert data["metrics"][f"{section}_hard"]["collision_rate"] == 1.0
             assert data["straight"][f"{section}_hard"]["success_rate"] == 0.0
+        # each record names the groups it counts in: the section, its hard subset where the line collides
+        for planner in ("line", "expert", "straight"):
+            mine = [r for r in records if r["planner"] == planner and r["group"] == section]
+            assert [f"{section}_hard" in r["groups"] for r in mine] == [r["collision"] for r in straight]
+            assert all(r["groups"][0] == section for r in mine)
+    per_generator = [r for r in records if r["planner"] == "straight" and r["group"] == "benchmark"]
+    for group, entry in data["groups"].items():  # the records' groups count what metrics.json says each holds
+        if entry.get("section") == "benchmark":
+            assert sum(group in r["groups"] for r in per_generator) == entry["problems"], group
 
 
 def test_every_rate_has_its_interval_and_times_are_per_problem(report):

@@ -187,22 +187,49 @@ def test_compare_across_protocols_warns(runs, capsys):
     assert "| eval/samp/heldout/success_rate | 0.75 | - |" in got.out
 
 
-def test_table_pools_the_interval_over_seeds(tmp_path, capsys):
+def problem_records(folder, outcomes: list[bool], planner="samp", group="benchmark") -> None:
+    """eval/problems.jsonl for `folder`: one record per problem of `group`, its success as given."""
+    with open(folder / "eval" / "problems.jsonl", "w") as f:
+        for i, ok in enumerate(outcomes):
+            f.write(json.dumps({"planner": planner, "problem": f"bench/scene0/problem{i}", "group": group,
+                                "groups": [group], "success": {"2cm": ok}, "reached": {"2cm": True},
+                                "collision": not ok, "self_collision": False,
+                                "joint_limit_violation": False}) + "\n")
+
+
+def test_table_interval_over_seeds_resamples_problems(tmp_path, capsys):
+    """Two seeds on the same 60 problems: the interval is over problems, not over the 120 rollouts pooled, and
+    runs without per-problem records show their mean and spread alone."""
     from samp.runs.__main__ import main
 
-    protocol_2_run(tmp_path, "samp_n100", "2026-03-01T00:00:00", seed=0)
-    protocol_2_run(tmp_path, "samp_n100", "2026-03-02T00:00:00", policy_groups(bench=(50, 55, 3)), seed=1)
+    a = protocol_2_run(tmp_path, "samp_n100", "2026-03-01T00:00:00", seed=0)
+    b = protocol_2_run(tmp_path, "samp_n100", "2026-03-02T00:00:00", policy_groups(bench=(50, 55, 3)), seed=1)
     protocol_2_run(tmp_path, "samp_n40", "2026-03-03T00:00:00", policy_groups(bench=(45, 50, 6)), seed=0)
+    protocol_2_run(tmp_path, "samp_n64", "2026-03-04T00:00:00", seed=0)
+    protocol_2_run(tmp_path, "samp_n64", "2026-03-05T00:00:00", seed=1)
+    first = [True] * 56 + [False] * 4
+    second = [True] * 50 + [False] * 10  # fails the first one's four and six more
+    problem_records(a, first)
+    problem_records(b, second)
     key = "eval/samp/benchmark/success_rate"
     main(["table", str(tmp_path), "by=experiment", f"metrics={key}"])
     out = capsys.readouterr().out
     assert _row(out, "experiment")[3] == f"{key} [%]"
     rates = (56 / 60, 50 / 60)
     mean, std = sum(rates) / 2, abs(rates[0] - rates[1]) / 2  # the population std of two values
-    low, high = wilson(56 + 50, 120)  # the two seeds' problems pooled
-    want = f"{100 * mean:.1f} ± {100 * std:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
-    assert _row(out, "samp_n100")[3] == want, f"expected {want!r}, got {_row(out, 'samp_n100')[3]!r}"
-    assert _row(out, "samp_n40")[3] == pct(45, 60)
+    cell = _row(out, "samp_n100")[3]
+    head, _, bracket = cell.partition(" [")
+    assert head == f"{100 * mean:.1f} ± {100 * std:.1f}", cell
+    low, high = (float(x) / 100 for x in bracket.rstrip("]").split(", "))
+    # oracle: the normal approximation of the mean over problems of the seeds' mean outcome
+    per_problem = [(x + y) / 2 for x, y in zip(first, second)]
+    m = sum(per_problem) / 60
+    se = math.sqrt(sum((v - m) ** 2 for v in per_problem) / 59 / 60)
+    assert abs(low - (m - Z * se)) < 0.02 and abs(high - (m + Z * se)) < 0.02, (cell, m - Z * se, m + Z * se)
+    pooled_low, pooled_high = wilson(56 + 50, 120)
+    assert high - low > pooled_high - pooled_low, "the seeds share their problems: wider than 120 pooled trials"
+    assert _row(out, "samp_n40")[3] == pct(45, 60)  # one run: its own Wilson interval
+    assert _row(out, "samp_n64")[3] == f"{100 * 56 / 60:.1f} ± 0.0", "no records: mean and spread, no interval"
 
 
 def test_default_metrics_prefer_the_benchmark(tmp_path):
@@ -307,13 +334,16 @@ def test_run_summary_plots_rates_with_wilson_error_bars(runs, monkeypatch):
     assert len(segments) == 2 * 2 and [y for _, y in segments[1]] == pytest.approx([100 * low, 100 * high])
 
 
-def test_bar_plots_show_pooled_intervals_or_the_range(tmp_path, monkeypatch):
+def test_bar_plots_show_intervals_over_problems_or_the_range(tmp_path, monkeypatch):
+    from samp.runs.intervals import problem_bootstrap
     from samp.runs.plots import plot_bars
     from samp.runs.registry import find_runs
 
     new, old = tmp_path / "new", tmp_path / "old"
-    protocol_2_run(new, "samp_n100", "2026-03-01T00:00:00", seed=0)
-    protocol_2_run(new, "samp_n100", "2026-03-02T00:00:00", policy_groups(bench=(50, 55, 3)), seed=1)
+    first, second = [True] * 56 + [False] * 4, [True] * 50 + [False] * 10
+    problem_records(protocol_2_run(new, "samp_n100", "2026-03-01T00:00:00", seed=0), first)
+    problem_records(protocol_2_run(new, "samp_n100", "2026-03-02T00:00:00", policy_groups(bench=(50, 55, 3)), seed=1),
+                    second)
     protocol_1_run(old, "samp_n40", "2026-01-01T00:00:00", seed=0)
     protocol_1_run(old, "samp_n40", "2026-01-02T00:00:00", seed=1)
     saved = _captured(monkeypatch)
@@ -321,10 +351,10 @@ def test_bar_plots_show_pooled_intervals_or_the_range(tmp_path, monkeypatch):
                    tmp_path / "new.png"))
     _png(plot_bars(find_runs(old), "experiment", ["eval/samp/heldout/success_rate"], tmp_path / "old.png"))
     (_, (rate, throughput)), (_, (legacy_rate,)) = saved
-    low, high = wilson(106, 120)
-    assert rate[0] == "mean of runs [%]; bars: pooled Wilson 95 %"
+    low, high = problem_bootstrap([{str(i): float(v) for i, v in enumerate(o)} for o in (first, second)])
+    assert rate[0] == "mean of runs [%]; bars: 95 % over problems"
     assert [y for _, y in rate[1][0]] == pytest.approx([100 * low, 100 * high])
     assert throughput[0] == "mean of runs; bars: min to max", throughput[0]
-    assert legacy_rate[0] == "mean of runs [%]; bars: pooled Wilson 95 %"  # protocol 1 gives its problem counts
-    low, high = wilson(75 + 75, 200)
-    assert [y for _, y in legacy_rate[1][0]] == pytest.approx([100 * low, 100 * high])
+    # protocol 1 kept no per-problem records: the range over the runs (both 75 %)
+    assert legacy_rate[0] == "mean of runs [%]; bars: min to max", legacy_rate[0]
+    assert [y for _, y in legacy_rate[1][0]] == pytest.approx([75.0, 75.0])

@@ -144,9 +144,10 @@ def workspace_poses(scene, count: int, cfg: ProblemConfig, rng: np.random.Genera
 
 
 def ik_goals(robot, world, poses: np.ndarray, cfg: ExpertConfig, generator: torch.Generator,
-             rng: np.random.Generator) -> list[np.ndarray]:
+             rng: np.random.Generator, outcomes: list | None = None) -> list[np.ndarray]:
     """poses (K, 4, 4) -> K arrays (m_k, n) of IK solutions `cfg.clearance` clear of obstacles and free of
-    self-collision, from up to `ik.candidates` converged seeds per pose (in random order); m_k may be 0."""
+    self-collision, from up to `ik.candidates` converged seeds per pose (in random order); m_k may be 0.
+    With `outcomes`, one entry per pose is appended to it: "ok", or why m_k is 0 (`GOAL_FAILURES`)."""
     chunk = max(1, IK_BATCH // cfg.ik.seeds)
     q, converged = [], []
     for a in range(0, len(poses), chunk):
@@ -158,7 +159,29 @@ def ik_goals(robot, world, poses: np.ndarray, cfg: ExpertConfig, generator: torc
     flat = np.array([(k, s) for k, row in enumerate(picks) for s in row], dtype=int).reshape(-1, 2)
     free = ~world.in_collision(q[flat[:, 0], flat[:, 1]], margin=cfg.clearance) if len(flat) else np.zeros(0, bool)
     kept = flat[free]
+    if outcomes is not None:
+        outcomes.extend(_goal_outcomes(world, q, flat, free, len(poses), cfg.clearance))
     return [q[k, kept[kept[:, 0] == k, 1]] for k in range(len(poses))]
+
+
+# Why a goal pose gave no usable IK solution, the key of its problem's reason (shown by `samp.data show`).
+GOAL_FAILURES = {"ik": "IK failed", "obstacles": "goal in collision", "self": "self-collision or joint limits"}
+
+
+def _goal_outcomes(world, q: np.ndarray, flat: np.ndarray, free: np.ndarray, count: int, clearance: float) -> list[str]:
+    """Per pose: "ok"; "ik" when no IK seed converged (the pose is out of the arm's reach, or the IK
+    budget too small); "obstacles" when every converged solution is within `clearance` of an obstacle;
+    "self" when some are clear of obstacles but all are in self-collision or outside the joint limits.
+    The second check runs only for the poses without a free solution."""
+    out = ["ik"] * count
+    for k in np.unique(flat[:, 0]).tolist():
+        mine = flat[:, 0] == k
+        if free[mine].any():
+            out[k] = "ok"
+        else:
+            clear = ~world.in_collision(q[k, flat[mine, 1]], margin=clearance, self_collision=False, joint_limits=False)
+            out[k] = "self" if clear.any() else "obstacles"
+    return out
 
 
 def random_free_configs(robot, world, count: int, rng: np.random.Generator, clearance: float,
@@ -221,17 +244,33 @@ def _solve_goals(robot, scene, world, kinds: np.ndarray, cfg: ExpertConfig, gene
     rounds of `poses_per_goal` fresh poses for the goals still without one."""
     pc, n, P = cfg.problems, robot.dof, cfg.problems.poses_per_goal
     found = [(np.zeros((0, n)), np.zeros((0, 4, 4))) for _ in kinds]
+    tally = [dict.fromkeys(GOAL_FAILURES, 0) for _ in kinds]  # per goal: its poses' failures, for its reason
     pending = np.arange(len(kinds))
     for _ in range(pc.goal_rounds):
         if len(pending) == 0:
             break
         owner = np.repeat(pending, P)  # (len(pending) * P,) goal of each pose
         poses = _goal_poses(scene, kinds[owner], pc, rng)
-        for i, pose, q in zip(owner, poses, ik_goals(robot, world, poses, cfg, generator, rng)):
+        outcomes: list[str] = []
+        solved = ik_goals(robot, world, poses, cfg, generator, rng, outcomes)
+        for i, why in zip(owner, outcomes):
+            if why != "ok":
+                tally[i][why] += 1
+        for i, pose, q in zip(owner, poses, solved):
             qs, ps = found[i]
             found[i] = (np.concatenate([qs, q]), np.concatenate([ps, np.repeat(pose[None], len(q), axis=0)]))
         pending = np.array([i for i in pending if len(found[i][0]) == 0], dtype=int)
-    return found
+    return found, tally
+
+
+def _no_goal_reason(counts: dict[str, int], kind: str, clearance: float) -> str:
+    """Why a goal has no valid configuration: the commonest failure of its poses first (before the colon,
+    so that a dataset's summary counts problems by it), then every count and what to change."""
+    main = max(counts, key=counts.get)
+    return (f"no valid goal ({GOAL_FAILURES[main]}): of {sum(counts.values())} sampled {kind} poses, IK failed for "
+            f"{counts['ik']} (out of the arm's reach? check the scene's workspace against the robot, or raise "
+            f"ik.seeds), every solution was within {clearance} m of an obstacle for {counts['obstacles']}, and in "
+            f"self-collision or outside the joint limits for {counts['self']}")
 
 
 def straight_line_blocked(world, q_start: np.ndarray, q_goal: np.ndarray, cfg: ExpertConfig) -> bool:
@@ -275,14 +314,12 @@ def _sample(robot, scene, world, count: int, seed: int, cfg: ExpertConfig,
     generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
     with_target = scene.target is not None and pc.target_fraction > 0 and len(target_approaches(scene, pc)) > 0
     kinds = _goal_kinds(count, with_target, pc, rng)
-    found = _solve_goals(robot, scene, world, kinds, cfg, generator, rng)
+    found, tally = _solve_goals(robot, scene, world, kinds, cfg, generator, rng)
     valid = np.array([len(q) > 0 for q, _ in found], dtype=bool)
     chained = np.zeros(count, dtype=bool)
     if pc.start == "chain":
         chained[1:] = valid[:-1]
     randoms = iter(random_free_configs(robot, world, int((~chained).sum()), rng, cfg.clearance, pc))
-    reason = (f"no valid goal: IK found no configuration {cfg.clearance} m clear of obstacles for "
-              f"{pc.goal_rounds * pc.poses_per_goal} sampled {{}} poses")
     # Detours from streams of their own: detour_share 0 leaves every other draw as it was.
     drng = np.random.default_rng([seed, DETOUR_STREAM])
     dgen = torch.Generator().manual_seed(int(drng.integers(2**62)))
@@ -291,7 +328,8 @@ def _sample(robot, scene, world, count: int, seed: int, cfg: ExpertConfig,
     for i in range(count):
         start = problems[-1].q_goal if chained[i] else next(randoms)
         if not valid[i]:
-            problems.append(PlanningProblem(start, None, None, str(kinds[i]), reason.format(kinds[i])))
+            problems.append(PlanningProblem(start, None, None, str(kinds[i]),
+                                            _no_goal_reason(tally[i], str(kinds[i]), cfg.clearance)))
             continue
         chosen = _detour_goal(robot, scene, world, start, str(kinds[i]), found[i], cfg, drng, dgen) if wanted[i] else None
         if chosen is None:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 import os
 import textwrap
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -45,16 +44,20 @@ def _link(urdf: URDFModel, name: str, what: str) -> str:
     return name
 
 
-def _movable_depth(urdf: URDFModel, link: str) -> int:
-    """The most movable joints on a path down from `link`."""
-    return max(((j.type != "fixed") + _movable_depth(urdf, j.child) for j in _children(urdf, link)), default=0)
+def _movable_depths(urdf: URDFModel) -> dict[str, int]:
+    """link -> the most movable joints on a path down from it, leaves first (a loop, not recursion: a URDF
+    may be a chain deeper than Python's recursion limit)."""
+    depth: dict[str, int] = {}
+    for link in reversed(_subtree(urdf, urdf.root)):  # every child before its parent
+        depth[link] = max(((j.type != "fixed") + depth[j.child] for j in _children(urdf, link)), default=0)
+    return depth
 
 
 def default_ee(urdf: URDFModel, base: str) -> str:
     """The tip of the longest chain of movable joints below `base`, or the link where it splits evenly."""
-    link = base
+    link, depth = base, _movable_depths(urdf)
     while True:
-        scored = [((j.type != "fixed") + _movable_depth(urdf, j.child), j) for j in _children(urdf, link)]
+        scored = [((j.type != "fixed") + depth[j.child], j) for j in _children(urdf, link)]
         best = max((s for s, _ in scored), default=0)
         top = [j for s, j in scored if s == best]
         if best == 0 or len(top) > 1:
@@ -82,8 +85,12 @@ def arm_joints(urdf: URDFModel, base: str, ee: str) -> list:
 
 
 def _subtree(urdf: URDFModel, link: str) -> list[str]:
-    """`link` and every link below it, depth first in the URDF's joint order."""
-    return [link, *(name for j in _children(urdf, link) for name in _subtree(urdf, j.child))]
+    """`link` and every link below it, depth first in the URDF's joint order (parents before children)."""
+    out, stack = [], [link]
+    while stack:
+        out.append(stack.pop())
+        stack.extend(reversed([j.child for j in _children(urdf, out[-1])]))
+    return out
 
 
 def _limits(joint) -> tuple[float, float]:
@@ -125,8 +132,10 @@ def _base(urdf: URDFModel, base: str | None) -> str:
 
 
 def urdf_reference(urdf: Path, yaml_dir: Path) -> str:
-    """How the YAML names its URDF: `pybullet_data://...` under pybullet_data, a path relative to the YAML's
-    folder when the URDF lies inside the config folder (so the folder can move), else the absolute path."""
+    """How the YAML names its URDF: `pybullet_data://...` under pybullet_data; a path relative to the YAML's
+    folder when the URDF lies in the project that holds the config folder (`yaml_dir` is CONF/robot, the
+    project CONF's parent: docs/bring-your-own.md puts robots/ beside conf/), so the project can be
+    committed and moved; else the absolute path."""
     import pybullet_data
 
     from samp.paths import PYBULLET_DATA_SCHEME
@@ -135,7 +144,8 @@ def urdf_reference(urdf: Path, yaml_dir: Path) -> str:
     data = Path(pybullet_data.getDataPath()).resolve()
     if urdf.is_relative_to(data):
         return PYBULLET_DATA_SCHEME + urdf.relative_to(data).as_posix()
-    if urdf.is_relative_to(yaml_dir.resolve().parent):
+    project = yaml_dir.resolve().parent.parent
+    if project != Path(project.anchor) and urdf.is_relative_to(project):
         return Path(os.path.relpath(urdf, yaml_dir.resolve())).as_posix()
     return str(urdf)
 
@@ -149,10 +159,7 @@ def propose_robot(urdf_path: Path, name: str, yaml_dir: Path, base: str | None =
 
     if not urdf_path.is_file():
         raise FileNotFoundError(f"URDF {urdf_path} does not exist")
-    try:
-        urdf = parse_urdf(urdf_path.resolve())
-    except ET.ParseError as err:
-        raise ValueError(f"{urdf_path} is not a readable URDF: {err}") from None
+    urdf = parse_urdf(urdf_path.resolve())  # checked as it is read: one line naming the file and the joint
     base = _base(urdf, base)
     ee = _link(urdf, ee, "end-effector link") if ee else default_ee(urdf, base)
     joints = arm_joints(urdf, base, ee)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from samp.meshes import load_mesh
 from samp.robot.urdf import Collision
 
 __all__ = ["LinkGeometry", "link_geometry"]
@@ -64,7 +65,7 @@ def _convex_parts(c: Collision) -> list[trimesh.Trimesh]:
     if c.kind != "mesh":
         parts = [_primitive(c)]
     else:
-        loaded = trimesh.load(c.mesh_path, force="mesh", process=False)
+        loaded = load_mesh(c.mesh_path, solid=True)  # checked: bounded, not empty, not flat
         loaded.merge_vertices()
         loaded.apply_transform(np.diag([*c.scale, 1.0]))
         bodies = [b for b in loaded.split(only_watertight=False) if len(b.vertices) >= 4]

@@ -21,7 +21,8 @@ def visual_meshes(robot) -> dict[str, "trimesh.Trimesh"]:
 
     import trimesh
 
-    from samp.robot.urdf import _floats, _resolve_mesh, origin_matrix
+    from samp.meshes import load_mesh
+    from samp.robot.urdf import _floats, origin_matrix, resolve_mesh
 
     root = ET.parse(robot.urdf.path).getroot()
     out = {}
@@ -35,13 +36,14 @@ def visual_meshes(robot) -> dict[str, "trimesh.Trimesh"]:
             if shape is None:
                 continue
             try:
-                mesh = trimesh.load(_resolve_mesh(shape.get("filename", ""), robot.urdf.path.parent), force="mesh")
+                mesh = load_mesh(resolve_mesh(shape.get("filename", ""), robot.urdf.path.parent), process=True)
             except (FileNotFoundError, ValueError):
                 continue
             if hasattr(mesh.visual, "to_color"):  # a textured mesh: its colours per vertex
                 mesh.visual = mesh.visual.to_color()
-            mesh.apply_scale(_floats(shape.get("scale"), (1.0, 1.0, 1.0)))
-            mesh.apply_transform(origin_matrix(visual))
+            where = f"{robot.urdf.path}: link {name!r} <visual>"  # a bad number is refused with its place
+            mesh.apply_scale(_floats(shape.get("scale"), (1.0, 1.0, 1.0), f"{where} <mesh scale>"))
+            mesh.apply_transform(origin_matrix(visual, where))
             parts.append(mesh)
         out[name] = trimesh.util.concatenate(parts) if parts else robot.link_meshes[name]
     return out

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 import trimesh
 
+from samp.meshes import load_mesh
 from samp.scene.model import Box, Cylinder, MeshObstacle, Scene, Sphere
 
 __all__ = ["box_sdf", "cylinder_sdf", "sphere_sdf", "scene_sdf", "mesh_signed_distance", "obstacle_mesh", "obstacle_parts"]
@@ -74,7 +75,7 @@ def _primitive_sdf(scene: Scene, points: torch.Tensor) -> torch.Tensor:
 def obstacle_parts(obstacle: MeshObstacle) -> tuple[trimesh.Trimesh, ...]:
     """The obstacle's closed bodies in its own frame (scaled, welded by position); its convex hull when
     asked for. A file of several bodies (a V-HACD decomposition) is their union."""
-    mesh = trimesh.load(obstacle.resolved_path(), force="mesh", process=False)
+    mesh = load_mesh(obstacle.resolved_path(), solid=True)  # checked: bounded, not empty, not flat
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
     mesh.apply_scale(obstacle.scale)
     if obstacle.convex_hull:

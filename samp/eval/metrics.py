@@ -57,16 +57,16 @@ Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile: two-sided 95 %
 
 def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float | None, float | None]:
     """The Wilson score interval of a binomial rate (successes of n), in [0, 1]; (None, None) for n = 0.
-    Unlike p ± z sqrt(p(1-p)/n) it stays within [0, 1] and does not collapse at 0 or n successes."""
+    Unlike p ± z sqrt(p(1-p)/n) it stays within [0, 1] and does not collapse at 0 or n successes. scipy
+    computes it (`binomtest(...).proportion_ci(method="wilson")`, no continuity correction); `z` is turned
+    into its two-sided confidence level."""
     if n == 0:
         return None, None
-    p, z2 = successes / n, z * z
-    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
-    half = z * np.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
-    # exactly 0 at no successes and 1 at all (the formula leaves a rounding error of ~1e-17 there)
-    low = 0.0 if successes == 0 else float(max(0.0, centre - half))
-    high = 1.0 if successes == n else float(min(1.0, centre + half))
-    return low, high
+    from scipy.stats import binomtest, norm
+
+    level = 2 * float(norm.cdf(z)) - 1
+    ci = binomtest(int(successes), int(n)).proportion_ci(confidence_level=level, method="wilson")
+    return float(ci.low), float(ci.high)
 
 
 def _rate(values: list) -> tuple:

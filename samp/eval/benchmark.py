@@ -40,6 +40,9 @@ class Benchmark:
         return f"{self.dataset.name}@{self.dataset.id}"
 
 
+HELD_OUT = "final"  # bench_final: read only for a final table, never to choose (docs/evaluation.md)
+
+
 def benchmark_names(value) -> list[str]:
     """`benchmark=` as a list of names: null -> [], "unseen" -> ["unseen"], [unseen, hard] -> as given."""
     if value is None:
@@ -79,6 +82,9 @@ def open_benchmark(name: str, root: str | Path | None = None, workers: int = 2):
 
     spec = benchmark_spec(name)
     root = Path(root) if root else None
+    if name == HELD_OUT:
+        print(f"benchmark {name!r} is held out for final tables: choosing a setting by its figures makes it one "
+              "more selection set (conf/dataset/bench_final.yaml)", flush=True)
     try:
         found = open_dataset(spec, root)
     except DatasetError:

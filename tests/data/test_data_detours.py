@@ -110,6 +110,21 @@ def test_the_confirmation_benchmark_is_bench_unseens_recipe_on_other_scenes():
     assert {k for k in {*unseen, *confirm} if unseen.get(k) != confirm.get(k)} == {"name", "seed", "scene_namespace"}
 
 
+def test_the_held_out_benchmark_is_bench_unseens_recipe_on_a_seed_and_namespace_of_its_own():
+    """`benchmark=final` measures what bench_unseen does (more scenes of the same generators) on a seed and a
+    scene namespace that no other spec uses, so none of its scenes or problems was ever read by a choice."""
+    from samp.data import available_specs
+    from samp.data.spec import load_spec
+    from samp.eval.benchmark import benchmark_spec
+
+    unseen, final = (load_spec(benchmark_spec(name)).resolved() for name in ("unseen", "final"))
+    assert {k for k in {*unseen, *final} if unseen.get(k) != final.get(k)} == {
+        "name", "seed", "scene_namespace", "test_scenes"}
+    others = [load_spec(s).resolved() for s in available_specs() if s != "bench_final"]
+    assert final["seed"] not in {o.get("seed") for o in others}
+    assert final["scene_namespace"] not in {o.get("scene_namespace") for o in others}
+
+
 def test_the_hard_benchmark_draws_every_problem_to_need_a_detour_on_scenes_of_its_own():
     """`benchmark=hard` is bench_unseen's kind of measurement on problems that need a detour: unseen scenes of
     every generator in a namespace no other spec uses, every problem drawn with its straight line blocked, and

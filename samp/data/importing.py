@@ -51,13 +51,16 @@ def check_recorded(world, robot, rec: Recorded, waypoints: int, resolution: floa
         return None, f"step {step} is not finite (NaN or inf)"
     if rec.timestamps is not None:
         t = np.asarray(rec.timestamps)
+        if not np.all(np.isfinite(t)):  # NaN compares false, so the increase check below would pass it
+            return None, f"timestamp {int(np.flatnonzero(~np.isfinite(t))[0])} is not finite (NaN or inf)"
         if len(t) != len(q) or np.any(np.diff(t) <= 0):
             return None, f"timestamps must be one per step and strictly increasing ({len(t)} for {len(q)} steps)"
-    jumps = np.abs(np.diff(q, axis=0)).max(axis=1)
+    with np.errstate(over="ignore"):  # two finite steps 1e308 apart: an inf jump, refused below like any other
+        jumps = np.abs(np.diff(q, axis=0)).max(axis=1)
     if jumps.max() > max_jump:
         step = int(np.argmax(jumps > max_jump))
         joint = robot.joint_names[int(np.argmax(np.abs(q[step + 1] - q[step])))]
-        return None, (f"jump of {jumps[step]:.3f} rad in {joint} between steps {step} and {step + 1} (more than "
+        return None, (f"jump of {_rad(jumps[step])} rad in {joint} between steps {step} and {step + 1} (more than "
                       f"max_jump={max_jump})")
     traj = resample(q, waypoints)
     if first_invalid_segment(world, traj, resolution, margin) is None:
@@ -80,6 +83,16 @@ def check_recorded(world, robot, rec: Recorded, waypoints: int, resolution: floa
     return None, f"{where}: {_what_is_hit(world, robot, states[deepest], margin)}"
 
 
+def _rad(x: float) -> str:
+    """An angle for a message: 3 decimals, or 3 significant digits where a recording holds absurd values (1e300)."""
+    return f"{x:.3f}" if abs(x) < 1e4 else f"{x:.3g}"
+
+
+def _row(q: np.ndarray, i: int) -> list | None:
+    """Row i of a recording as a list, None for a recording with no steps (it is refused, and recorded so)."""
+    return q[i].tolist() if len(q) else None
+
+
 def _what_is_hit(world, robot, q: np.ndarray, margin: float) -> str:
     """Why one configuration is invalid, naming the joint or the obstacle."""
     from samp.scene import Scene
@@ -88,7 +101,7 @@ def _what_is_hit(world, robot, q: np.ndarray, margin: float) -> str:
     if world.outside_limits(q[None])[0]:
         lim = robot.joint_limits.double().cpu().numpy()
         j = int(np.argmax(np.maximum(lim[:, 0] - q, q - lim[:, 1])))
-        return f"{robot.joint_names[j]} at {q[j]:.3f} rad is outside its limits [{lim[j, 0]:.3f}, {lim[j, 1]:.3f}]"
+        return f"{robot.joint_names[j]} at {_rad(q[j])} rad is outside its limits [{lim[j, 0]:.3f}, {lim[j, 1]:.3f}]"
     scene = world.scene
     for o in scene.all_obstacles:
         with World(robot, Scene(name=o.name, obstacles=(o,), bounds=scene.bounds)) as alone:
@@ -137,6 +150,7 @@ def import_dataset(sources: list[Path], cfg: ImportConfig, root: Path | None = N
     """Check, resample and write the trajectories of `sources` as dataset `cfg.name` -> (folder, summary)."""
     import os
     import shutil
+    import sys
     import time
     from dataclasses import asdict
 
@@ -167,7 +181,9 @@ def import_dataset(sources: list[Path], cfg: ImportConfig, root: Path | None = N
     tmp.mkdir(parents=True)
     try:
         infos, summary = [], {"kept": 0, "refused": 0, "reasons": []}
-        with tqdm(total=len(recorded), desc=f"import {cfg.name}", unit="traj", disable=not progress) as bar:
+        # a bar only on a terminal: redirected to a log, its \r frames would be noise (the summary line says it all)
+        drawn = progress and sys.stderr.isatty()
+        with tqdm(total=len(recorded), desc=f"import {cfg.name}", unit="traj", disable=not drawn) as bar:
             for index, ref in enumerate(refs):
                 split = "val" if ref in val else "train"
                 mine = [r for r in recorded if r.scene == ref]
@@ -231,7 +247,7 @@ def _import_scene(target: _Target, ref: str, index: int, split: str, mine: list[
             traj, reason = check_recorded(planner.world, robot, rec, expert.waypoints, expert.resolution,
                                           expert.check_margin, cfg.max_jump)
             episodes.append({"episode": k, "success": traj is not None, "reason": reason, "kind": "imported",
-                             "purpose": "demonstration", "start": rec.q[0].tolist(), "goal": rec.q[-1].tolist(),
+                             "purpose": "demonstration", "start": _row(rec.q, 0), "goal": _row(rec.q, -1),
                              "goal_pose": None, "detour": None,
                              "stats": {"source": rec.source, "recorded_steps": int(len(rec.q))}})
             if traj is None:

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 __all__ = ["REPO_ROOT", "cache_dir", "check_name", "conf_dir", "config_path", "env_folder", "file_sha256", "find_checkpoint",
-           "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "source_checkout", "user_config",
-           "unique_tmp", "write_cache_file"]
+           "inside", "packaged_conf_dir", "project_dir", "resolve_asset", "runs_root", "shown_path", "source_checkout",
+           "user_config", "unique_tmp", "write_cache_file"]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PACKAGED_CONF = Path(__file__).resolve().parent / "_conf"  # where a wheel carries conf/ (see setup.py)
@@ -82,12 +82,19 @@ def conf_dir() -> Path:
         return own
     from samp.config_overlay import overlay
 
-    folder, shadowed = overlay([*user, own], cache_dir("config"))
+    folder, shadowed = overlay([*user, own], cache_dir("config"), trusted=(own,))  # the user's files are checked
     for line in shadowed:
         if line not in _said:
             _said.add(line)
             print(f"samp: {line}", file=sys.stderr)
     return folder
+
+
+def shown_path(path: Path) -> Path:
+    """The file to name in a message about `path`: a config of the merged view (`conf_dir()`) that comes from
+    a user's folder is named at the user's own file, which they can open and fix, not at its link in samp's
+    cache; any other path is kept as it is."""
+    return Path(path).resolve() if user_config(path) else Path(path)
 
 
 def user_config(path: Path) -> Path | None:

@@ -29,8 +29,9 @@ from omegaconf.errors import ConfigKeyError, ValidationError
 from samp.expert.config import ExpertConfig, load_expert_config
 from samp.expert.seeding import derive_seed
 from samp.names import N_E_MAX
-from samp.paths import conf_dir
+from samp.paths import conf_dir, shown_path
 from samp.scene.registry import _load_config as load_generator_config
+from samp.yaml_files import load_config
 
 __all__ = ["FILE_GENERATOR", "SPLIT_ORDER", "DatasetSpec", "SceneJob", "available_specs", "check_overrides", "load_spec", "namespace_key"]
 
@@ -160,7 +161,7 @@ def load_spec(source: str | Path | dict | DictConfig) -> DatasetSpec:
                                  "(or pass the path of a YAML file)")
         elif not path.is_file():
             raise FileNotFoundError(f"dataset spec {path} does not exist")
-        raw = OmegaConf.load(path)
+        raw = load_config(shown_path(path), "dataset spec")  # aliases and size bounded; the user's own file named
     retired = sorted(set(raw) & set(RETIRED_KEYS)) if isinstance(raw, DictConfig) else []
     if retired:
         raise ValueError(f"dataset spec key {retired[0]!r} is retired: use {RETIRED_KEYS[retired[0]]}; "
@@ -198,7 +199,7 @@ def _check_key(override: str) -> None:
     if head == "dataset":
         valid, name, shown = sorted(DatasetSpec.__dataclass_fields__), leaf.split(".")[0], "spec keys (dataset.KEY)"
     else:
-        valid = [k for k in OmegaConf.load(conf_dir() / "data.yaml") if k not in ("defaults", "hydra")]
+        valid = [k for k in load_config(shown_path(conf_dir() / "data.yaml")) if k not in ("defaults", "hydra")]
         name, shown = key, "settings"
     if "." in key and head != "dataset" or name not in valid:
         close = [f"dataset.{c}" if head == "dataset" else c for c in difflib.get_close_matches(name, valid, n=1)]

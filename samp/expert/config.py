@@ -99,7 +99,9 @@ def load_expert_config(source: str | Path | DictConfig | dict[str, Any] | Expert
                                  "(or pass the path of a YAML file)")
         elif not path.is_file():
             raise FileNotFoundError(f"expert config {path} does not exist")
-        raw = OmegaConf.load(path)
+        from samp.yaml_files import load_config  # aliases and size bounded (a user's file)
+
+        raw = load_config(path, "expert config")
     try:
         merged = OmegaConf.merge(OmegaConf.structured(ExpertConfig), raw, OmegaConf.create(overrides))
         OmegaConf.resolve(merged)

@@ -71,7 +71,9 @@ def load_robot_config(name_or_path: str | Path | DictConfig | dict[str, Any]) ->
                                  "(or pass the path of a robot YAML file)")
         elif not path.is_file():
             raise FileNotFoundError(f"robot config {path} does not exist")
-        raw = OmegaConf.load(path)
+        from samp.yaml_files import load_config  # aliases and size bounded (a user's file)
+
+        raw = load_config(path, "robot config")
         source_dir = str(path.resolve().parent)
     schema = OmegaConf.structured(RobotConfig)
     try:

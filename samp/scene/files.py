@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from samp.scene.model import DEFAULT_BOUNDS, Box, Cylinder, MeshObstacle, Pose, Scene, Sphere
+from samp.yaml_files import YamlFileError
 
 __all__ = ["SCENE_FILE_SUFFIXES", "load_scene_file", "resolve_scene_file"]
 
@@ -65,16 +66,24 @@ def load_scene_file(path: str | Path, name: str | None = None) -> Scene:
     except (KeyError, TypeError) as err:
         raise ValueError(f"scene file {path}: {type(err).__name__} {err}; see docs/robots-and-scenes.md for the "
                          "format") from None
+    except YamlFileError:  # names the scene file already
+        raise
     except ValueError as err:
         raise ValueError(f"scene file {path}: {err}") from None
     return scene
 
 
 def _from_description(path: Path, name: str) -> Scene:
-    import yaml
+    from samp.yaml_files import load_yaml
 
-    text = path.read_text()
-    data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(path.read_text())
+        except RecursionError:  # the C scanner stops at Python's recursion limit, not with a ValueError
+            raise ValueError("its JSON nests deeper than Python's recursion limit; a scene is a flat list of "
+                             "obstacles") from None
+    else:  # aliases, nesting and size bounded (an alias bomb would otherwise never finish loading)
+        data = load_yaml(path, "scene file", max_bytes=MAX_SCENE_FILE_BYTES)
     if not isinstance(data, dict):
         raise ValueError(f"expected a mapping with `obstacles` (and optionally `target`, `bounds`, `name`), got "
                          f"{type(data).__name__}")

@@ -182,7 +182,9 @@ def load_camera_set(ref: "str | Path | dict | CameraSet") -> CameraSet:
         if not path.is_file():
             names = sorted(p.stem for p in folder.glob("*.yaml"))
             raise FileNotFoundError(f"no camera set {str(ref)!r}: {path} does not exist; give a YAML path or one of {names}")
-        data = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+        from samp.yaml_files import load_config  # aliases and size bounded (a user's file)
+
+        data = OmegaConf.to_container(load_config(path, "camera set"), resolve=True)
         data.setdefault("name", path.stem)
     data.pop("_target_", None)
     unknown = sorted(set(data) - {"name", "cameras", "common", "seed"})

@@ -3,7 +3,11 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 TORCH_VERSION ?= 2.13.0
-# CPU wheels of torch for machines without an NVIDIA GPU (used only when no local wheel is found).
+# torch's CPU build, for machines without an NVIDIA GPU: Linux wheels carry it as the local version `+cpu`;
+# PyPI's wheels for macOS and Windows are CPU builds under the plain version.
+TORCH_CPU := torch==$(TORCH_VERSION)$(if $(filter Linux,$(shell uname -s)),+cpu,)
+# An index with torch's CPU builds, tried last and only as an *extra* index (pip's own index, find-links and
+# mirror settings stay in force for everything else). Set it to your mirror of it, or empty to never ask it.
 TORCH_CPU_INDEX ?= https://download.pytorch.org/whl/cpu
 STAMP := $(VENV)/.samp-installed
 
@@ -11,9 +15,11 @@ STAMP := $(VENV)/.samp-installed
 
 install: $(STAMP)
 
-# torch is installed first and only when missing: on a machine without an NVIDIA GPU we take a local
-# CPU wheel if pip's find-links has one (its dependencies come with the package install below), else
-# the CPU index, so no CUDA packages are ever pulled there.
+# torch is installed first and only when missing, through pip as it is configured (pip.conf, PIP_INDEX_URL,
+# PIP_EXTRA_INDEX_URL, PIP_FIND_LINKS: a mirror works as it does for every other package). With an NVIDIA
+# GPU: torch==$(TORCH_VERSION) from there. Without one, only the CPU build, never a CUDA one: a local wheel
+# in pip's find-links (its dependencies come with the package install below), else pip's indexes, else
+# TORCH_CPU_INDEX as an extra index; if none has it, the install stops and says what to set.
 # constraints.txt pins every package to the version the test suite passed with: a dataset's bytes (and so its
 # content id) depend on the numeric libraries, so the same clone must install the same versions. `make lock`
 # rewrites it from the current environment after an upgrade has passed `make test`.
@@ -24,9 +30,13 @@ $(STAMP): pyproject.toml constraints.txt
 	    echo "NVIDIA GPU found: installing torch==$(TORCH_VERSION) with CUDA"; \
 	    $(PY) -m pip install "torch==$(TORCH_VERSION)"; \
 	  else \
-	    echo "No NVIDIA GPU: installing the CPU build of torch==$(TORCH_VERSION)"; \
-	    $(PY) -m pip install -q --no-index --no-deps "torch==$(TORCH_VERSION)" 2>/dev/null || \
-	      $(PY) -m pip install "torch==$(TORCH_VERSION)" --index-url $(TORCH_CPU_INDEX) --extra-index-url https://pypi.org/simple; \
+	    echo "No NVIDIA GPU: installing the CPU build of torch ($(TORCH_CPU))"; \
+	    $(PY) -m pip install -q --no-index --no-deps "$(TORCH_CPU)" 2>/dev/null || \
+	      $(PY) -m pip install -q "$(TORCH_CPU)" 2>/dev/null || \
+	      { test -n "$(TORCH_CPU_INDEX)" && $(PY) -m pip install "$(TORCH_CPU)" --extra-index-url "$(TORCH_CPU_INDEX)"; } || \
+	      { echo "error: no CPU build of torch ($(TORCH_CPU)) in pip's find-links, its indexes or TORCH_CPU_INDEX=$(TORCH_CPU_INDEX);" \
+	             "put the wheel in a find-links folder, or set TORCH_CPU_INDEX=URL (an index with torch's CPU builds)" >&2; \
+	        exit 1; }; \
 	  fi; \
 	fi
 	$(PY) -m pip install -q -c constraints.txt -e ".[dev]"

@@ -7,12 +7,19 @@ bad input, as a one-line error instead of a traceback. Helpers here compose Hydr
 and `group=` alike for the groups a config's defaults list names), list what a config folder offers for
 the help texts, parse `key=value` options (older `--flag value` spellings stay accepted), and print a
 composed config resolved where possible.
+
+samp composes with Hydra's API, not through Hydra's application, so Hydra's own flags are answered here:
+`--hydra-help` is samp's help, `--info` says which config folders samp reads (`config_info`), and the
+rest (`--package`, `--config-dir`, ...) are refused with what samp offers instead. Every override is
+parsed before composing, so a bad one is named on one line, and `hydra.run.dir`, which no samp command
+reads, is refused with the key that names the folder instead.
 """
 
 from __future__ import annotations
 
 import errno
 import math
+import os
 import re
 import shlex
 import sys
@@ -21,17 +28,69 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["HELP_FLAGS", "canonical_overrides", "check_finite", "command_help", "compose", "config_names",
-           "config_yaml", "default_groups", "describe", "flag", "output_path", "parse_options", "paste", "run_command",
-           "settings_help", "user_error",
-           "wants_help", "wrap"]
+__all__ = ["HELP_FLAGS", "INFO_FLAG", "answer_help", "canonical_overrides", "check_finite", "check_override_syntax",
+           "command_help", "compose", "config_info", "config_names", "config_yaml", "default_groups", "describe", "flag", "help_or_info",
+           "output_path", "parse_options", "paste", "run_command", "settings_help", "user_error", "wants_help", "wrap"]
 
-HELP_FLAGS = ("-h", "--help")
+HELP_FLAGS = ("-h", "--help", "--hydra-help")  # Hydra's help flag gets samp's help: samp's own options are the ones
+INFO_FLAG = "--info"  # Hydra's `--info [searchpath|defaults|...]`: here, the config folders samp reads
 
 
 def wants_help(argv: list[str]) -> bool:
-    """`-h` / `--help` anywhere, or `help` as the command."""
-    return any(a in HELP_FLAGS for a in argv) or argv[:1] == ["help"]
+    """`-h` / `--help` / `--hydra-help` / `--info` anywhere, or `help` as the command."""
+    return any(a in HELP_FLAGS for a in argv) or _wants_info(argv) or argv[:1] == ["help"]
+
+
+def _wants_info(argv: list[str]) -> bool:
+    return any(a == INFO_FLAG or a.startswith(INFO_FLAG + "=") for a in argv)
+
+
+def help_or_info(argv: list[str], usage: str | Callable[[], str]) -> str:
+    """What a help request prints: `config_info()` for `--info` (unless a help flag is given too), else the
+    usage (a text, or a function computing it)."""
+    if _wants_info(argv) and not any(a in HELP_FLAGS for a in argv):
+        return config_info()
+    return usage if isinstance(usage, str) else usage()
+
+
+def answer_help(argv: list[str], usage: str | Callable[[], str]) -> int:
+    """Print what `argv` asks for when it asks for help (`help_or_info`) on stdout and return 0, or, for no
+    arguments, the usage on stderr and 2. The help lists the user's config folders, so a folder that cannot
+    be read is an error of the user's: its one line on stderr, 2."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        text = help_or_info(argv, usage)
+    except (HydraException, OmegaConfBaseException, ValueError, OSError) as err:
+        message = user_error(err)
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)
+        return 2
+    from samp.console import as_installed  # the commands and config folder of this install
+
+    print(as_installed(text), file=sys.stdout if argv else sys.stderr)
+    return 0 if argv else 2
+
+
+def config_info() -> str:
+    """The config folders samp reads, in the order a file is looked for, where Hydra composes from, and
+    which of samp's files the user's folders shadow (Hydra's `--info searchpath` for samp)."""
+    from samp.config_overlay import overlay
+    from samp.paths import cache_dir, config_path, packaged_conf_dir
+
+    own, user = packaged_conf_dir(), config_path()
+    lines = ["config folders, in the order a file is looked for (the first folder that has it wins):"]
+    lines += [f"  {folder}   (SAMP_CONFIG_PATH)" for folder in user]
+    lines += [f"  {own}   (samp's own{', from SAMP_CONF_DIR' if os.environ.get('SAMP_CONF_DIR') else ''})"]
+    if user:
+        view, shadowed = overlay([*user, own], cache_dir("config"), trusted=(own,))
+        lines += ["", f"Hydra composes from their merged view: {view} (links to the files above)"]
+        lines += ["", "your files in place of samp's:" if shadowed else "no file of yours replaces one of samp's"]
+        lines += [f"  {line}" for line in shadowed]
+    lines += ["", "`python -m samp.train experiment=NAME --cfg job` prints a composed config; --help lists the options"]
+    return "\n".join(lines)
 
 
 @lru_cache(maxsize=None)
@@ -39,10 +98,11 @@ def default_groups(config_name: str) -> dict[str, str | None]:
     """The config groups named by conf/<config_name>.yaml's defaults list, with their default option."""
     from omegaconf import OmegaConf
 
-    from samp.paths import conf_dir
+    from samp.paths import conf_dir, shown_path
+    from samp.yaml_files import load_config
 
     path = conf_dir() / f"{config_name}.yaml"
-    raw = OmegaConf.to_container(OmegaConf.load(path)) if path.is_file() else {}
+    raw = OmegaConf.to_container(load_config(shown_path(path))) if path.is_file() else {}
     groups: dict[str, str | None] = {}
     for entry in raw.get("defaults") or []:
         if isinstance(entry, dict):
@@ -72,11 +132,57 @@ def compose(config_name: str, overrides: list[str], return_hydra_config: bool = 
 
     from samp.paths import conf_dir
 
+    check_override_syntax(config_name, overrides)
     with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
         cfg = hydra_compose(config_name=config_name, overrides=canonical_overrides(config_name, list(overrides)),
                             return_hydra_config=return_hydra_config)
     check_finite(_resolved(cfg, OmegaConf.to_container(cfg, resolve=False)))
     return cfg
+
+
+# Hydra application flags (`python app.py --flag`) that samp's command lines do not take, and what to use instead
+_FOLDERS = ("samp reads its configs from its own conf/ and the folders of SAMP_CONFIG_PATH: put your folder in "
+            "SAMP_CONFIG_PATH (docs/bring-your-own.md)")
+_HYDRA_FLAGS = {
+    ("--package", "-p"): "samp does not select a package of the printed config: print it whole with --cfg job "
+                         "(python -m samp.train) and read the node you need",
+    ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd"): _FOLDERS,
+    ("--multirun", "-m", "--run", "-r"): "only python -m samp.train takes -m (a sweep); a single run needs no flag",
+    ("--shell-completion", "-sc", "--experimental-rerun", "--version"): "samp's command lines do not offer it",
+}
+_OVERRIDES = "key=value, GROUP=OPTION, +key=value or ~key"
+_FLAGS = "--help and --info (python -m samp.train also takes -m and --cfg job|hydra|all)"
+# Where each command puts what Hydra's run folder would hold: samp makes its own folders
+_OUTPUT_KEY = {"train": "run_dir=DIR (python -m samp.train; default runs/EXPERIMENT/TIMESTAMP/ under SAMP_RUNS_DIR)",
+               "eval": "out=DIR (default RUN_DIR/eval/)", "data": "root=DIR (default datasets/ or SAMP_DATASETS_DIR)"}
+
+
+def check_override_syntax(config_name: str, overrides: list[str]) -> None:
+    """Each command-line override parsed as Hydra will parse it, so that a bad one is named on one line
+    (Hydra's own error spans three lines and, for a flag it does not know, names only a lexer exception);
+    Hydra's application flags and `hydra.run.*`, which samp's commands never read, are refused with what
+    to use instead."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    parser = OverridesParser.create()
+    for o in overrides:
+        if o.startswith("-"):
+            flag_name = o.partition("=")[0]
+            answer = next((a for flags, a in _HYDRA_FLAGS.items() if flag_name in flags), None)
+            raise ValueError(f"{flag_name} {'is a flag of Hydra applications' if answer else 'is not an option'}"
+                             f"{'; ' + answer if answer else ''}; samp's command lines take {_OVERRIDES}, and the "
+                             f"flags {_FLAGS}")
+        try:
+            key = parser.parse_override(o).key_or_group
+        except HydraException as err:  # parse_override raises the base class, parse_overrides a subclass
+            reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+            raise ValueError(f"override {o!r} is not valid: {reason}; write {_OVERRIDES}, and quote a value that "
+                             "holds spaces, brackets, commas or '=' (key='[1, 2]')") from None
+        if key == "hydra.run" or key.startswith("hydra.run."):
+            where = _OUTPUT_KEY.get(config_name, "the command's own output option (--help lists it)")
+            raise ValueError(f"{o!r} has no effect: samp does not run through Hydra's application, so no command "
+                             f"reads hydra.run.*; choose the output folder with {where}")
 
 
 def check_finite(node, path: str = "") -> None:
@@ -118,14 +224,12 @@ def run_command(argv: list[str] | None, usage: str | Callable[[], str],
     from omegaconf.errors import OmegaConfBaseException
 
     argv = sys.argv[1:] if argv is None else argv
-    text = usage if isinstance(usage, str) else None
     if wants_help(argv):
-        print(text or usage())
-        return 0
+        return answer_help(argv, usage)
     if not argv or argv[0] not in commands:
         if argv:
             print(f"error: unknown command {argv[0]!r}; commands: {', '.join(commands)}", file=sys.stderr)
-        print(text or usage(), file=sys.stderr)
+        answer_help([], usage)
         return 2
     try:
         commands[argv[0]](argv[1:])

@@ -12,10 +12,12 @@ pybullet's C extension writes "pybullet build time: ..." to stderr (file descrip
 from __future__ import annotations
 
 import os
+import re
 import sys
 import time
+from pathlib import Path
 
-__all__ = ["Progress", "import_pybullet", "is_terminal"]
+__all__ = ["Progress", "as_installed", "import_pybullet", "is_terminal", "plural"]
 
 
 def is_terminal(stream=None) -> bool:
@@ -102,3 +104,44 @@ class Progress:
             self._bar.close()
         elif self.enabled and (self._lines or time.perf_counter() - self._start >= self.every_s):
             self._line(final=True)
+
+
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """`n` and `word` agreeing in number: "1 problem", "3 problems", `plural(2, "entry", "entries")`."""
+    return f"{n} {word if n == 1 else (many or word + 's')}"
+
+
+def _console_scripts() -> dict[str, str]:
+    """{"samp.train": "samp-train", ...}: the modules `python -m` runs, by the command installed for each
+    (pyproject.toml's [project.scripts], read back from the installed package)."""
+    from importlib import metadata
+
+    try:
+        scripts = metadata.entry_points(group="console_scripts")
+    except Exception:  # broken metadata of some other package: no names to offer, the text stays as written
+        return {}
+    return {ep.name.replace("-", "."): ep.name for ep in scripts if ep.value.startswith("samp.")}
+
+
+_PYTHON_M = re.compile(r"python -m (samp\.\w+)(?![\w.])")  # not `samp.data.shards`, which has no command
+_CONF = re.compile(r"(?<![\w./-])conf/([\w./*<>{}-]*[\w/*>}])?")
+
+
+def as_installed(text: str) -> str:
+    """Help text in the terms of the command being run. Started through a console command (`samp-data`),
+    `python -m samp.X` is named by its command: the interpreter on PATH need not be the one samp is
+    installed in (pipx, a venv not activated). Running from configs other than a clone's `conf/` (an
+    installed wheel, `SAMP_CONF_DIR`), `conf/X` is "X in the shipped configs", and their folder is named."""
+    from samp.paths import REPO_ROOT, packaged_conf_dir
+
+    scripts = _console_scripts()
+    if Path(sys.argv[0]).stem in scripts.values():
+        text = _PYTHON_M.sub(lambda m: scripts.get(m.group(1), m.group(0)), text)
+    try:
+        own = packaged_conf_dir()
+    except FileNotFoundError:  # said by the command itself when it reads a config
+        return text
+    if own.resolve() != (REPO_ROOT / "conf").resolve() and _CONF.search(text):
+        text = _CONF.sub(lambda m: f"{m.group(1) or ''} in the shipped configs".lstrip(), text)
+        text += f"\n\nthe shipped configs: {own}"
+    return text

@@ -87,12 +87,14 @@ def _merge(overrides: list[str]) -> None:
 def _print_summary(folder: Path) -> None:
     from samp.data.registry import read_manifest
 
+    from samp.console import plural
+
     m = read_manifest(folder)
     c = m["counts"]
     print(f"dataset {m['name']}@{m['id']} in {folder}")
-    print(f"  {c['scenes']} scenes ({c['train_scenes']} train, {c['val_scenes']} val, {c['test_scenes']} test), "
-          f"{c['trajectories']} demonstrations ({c['failures']} problems failed), {c['eval_problems']} evaluation "
-          f"problems ({c['eval_failures']} unsolved by the expert), planner time "
+    print(f"  {plural(c['scenes'], 'scene')} ({c['train_scenes']} train, {c['val_scenes']} val, {c['test_scenes']} test), "
+          f"{plural(c['trajectories'], 'demonstration')} ({plural(c['failures'], 'problem')} failed), "
+          f"{plural(c['eval_problems'], 'evaluation problem')} ({c['eval_failures']} unsolved by the expert), planner time "
           f"{m['planning_time']['total_s'] + m['eval_planning_time']['total_s']:.1f} s")
 
 
@@ -259,7 +261,9 @@ def _push(args: list[str]) -> None:
     if not opts.get("remote"):
         raise ValueError("say where to push: remote=URL (file:///srv/samp, s3://bucket/samp, hf://datasets/ORG/REPO)")
     url, sent, kept = push_dataset(ref, opts["remote"], _root(opts), force=flag("force", opts.get("force", "false")))
-    print(f"pushed {url}: {sent} files uploaded, {kept} already there")
+    from samp.console import plural
+
+    print(f"pushed {url}: {plural(sent, 'file')} uploaded, {kept} already there")
 
 
 def _pull(args: list[str]) -> None:
@@ -270,7 +274,9 @@ def _pull(args: list[str]) -> None:
     if got + kept == 0:
         print(f"dataset {folder.parent.name}@{folder.name} is here already: {folder}")
     else:
-        print(f"pulled {folder.parent.name}@{folder.name} into {folder}: {got} files downloaded, {kept} kept from an "
+        from samp.console import plural
+
+        print(f"pulled {folder.parent.name}@{folder.name} into {folder}: {plural(got, 'file')} downloaded, {kept} kept from an "
               "earlier try; every file matches its sha256 and the dataset its id")
 
 

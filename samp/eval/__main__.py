@@ -239,13 +239,12 @@ def _provenance(cfg, run, planner, ds):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from samp.cli import settings_help, wants_help
+    from samp.cli import answer_help, settings_help, wants_help
 
     argv = sys.argv[1:] if argv is None else argv
     if wants_help(argv) or not argv:  # --help: stdout, 0; nothing to evaluate: stderr, 2
-        print(f"{USAGE}\n\nsettings (key=default; conf/eval.yaml, checked by samp/eval/config.py):\n"
-              f"{settings_help('eval')}", file=sys.stdout if argv else sys.stderr)
-        return 0 if argv else 2
+        return answer_help(argv, lambda: f"{USAGE}\n\nsettings (key=default; conf/eval.yaml, checked by "
+                           f"samp/eval/config.py):\n{settings_help('eval')}")
     return run_command(["evaluate", *argv], USAGE, {"evaluate": _evaluate})
 
 

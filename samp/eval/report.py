@@ -26,9 +26,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from samp.cli import paste
+from samp.console import plural
 
-__all__ = ["PROTOCOL", "Section", "benchmark_refs", "dataset_sections", "evaluate_sections", "flat_report",
-           "grid_source", "protocol_sections"]
+__all__ = ["CONSOLE_COLUMNS", "CONSOLE_WIDTH", "PROTOCOL", "Section", "benchmark_refs", "console_table", "dataset_sections",
+           "evaluate_sections", "flat_report", "grid_source", "protocol_sections"]
 
 PROTOCOL = 2  # metrics.json without a "protocol" key: version 1 (training demonstrations as problems)
 PROGRESS_S = 10.0  # seconds between progress lines of an evaluation when stderr is not a terminal
@@ -142,7 +143,7 @@ def _evaluate_section(planner, section: Section, cfg, expert) -> dict:
 
     rollout = cfg.rollout()
     start = time.perf_counter()
-    print(f"{section.name}: {len(section.problems)} problems", flush=True)
+    print(f"{section.name}: {plural(len(section.problems), 'problem')}", flush=True)
 
     def timed(name: str, who, grids) -> None:
         t0 = time.perf_counter()
@@ -178,7 +179,7 @@ def evaluate_sections(planner, sections: list[Section], cfg, out: Path, *, run_p
         raise ValueError("nothing to evaluate: no sections (give splits=[train,val] and/or benchmark=NAME)")
     expert = load_planner("expert")
     groups, blocks, records, problems, results_all = {}, {}, [], [], []
-    print(f"evaluating {planner.name}: " + ", ".join(f"{len(s.problems)} {s.name} problems" for s in sections),
+    print(f"evaluating {planner.name}: " + ", ".join(plural(len(s.problems), f"{s.name} problem") for s in sections),
           flush=True)
     for section in sections:
         results = _evaluate_section(planner, section, cfg, expert)
@@ -241,6 +242,40 @@ def _merged(results_all: list[dict], name: str) -> dict | None:
             "metrics": {k: v for p in parts for k, v in p["metrics"].items()}} if parts else None
 
 
+# The printed table: these columns of metrics.md's (name of the metric, its header), to fit a terminal of
+# CONSOLE_WIDTH columns; metrics.md keeps every column, the intervals and every tolerance.
+CONSOLE_COLUMNS = (("success_rate", "success %"), ("collision_rate", "collision %"), ("reach_rate", "reach %"),
+                   ("solution_time_b1", "time B=1 [s]"))
+CONSOLE_WIDTH = 100
+
+
+def console_table(rows: list[tuple[str, str, dict]], cfg, full: Path) -> str:
+    """(planner, group, metrics) rows as the compact table printed after an evaluation: planner, group,
+    problems, success, collision and reach rates (percent, at the stopping tolerance) and the solution
+    time one problem at a time (mean ± std), aligned, then a note naming `full` (metrics.md), which holds
+    the whole table. `cfg`: the `RolloutConfig` (its stopping tolerance is named)."""
+    import textwrap
+
+    from samp.eval.config import tolerance_label
+    from samp.eval.metrics import metric
+
+    columns = [(metric(name), title) for name, title in CONSOLE_COLUMNS]
+    header = ["planner", "group", "problems", *(title for _, title in columns)]
+    body = [[planner, group, str(m.get("problems", 0)),
+             *(c.column.cell([m.get(k) for k in c.keys()[:2 if c.stats == "mean_std" else 1]]) for c, _ in columns)]
+            for planner, group, m in rows]
+    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
+
+    def line(cells: list[str]) -> str:  # numbers right-aligned, names left
+        return "| " + " | ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))) + " |"
+
+    lines = [line(header), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *(line(r) for r in body)]
+    note = (f"Rates in percent, reached within {tolerance_label(cfg.position_tolerance)} (success: reached with no "
+            "violation); time: seconds per problem solved alone, mean ± std. The full table (95 % intervals, every "
+            f"tolerance, path length, self-collision, joint limits, step time, throughput) is in {full}")
+    return "\n".join(lines) + "\n\n" + textwrap.fill(note, CONSOLE_WIDTH, break_long_words=False, break_on_hyphens=False) + "\n"
+
+
 def _write(out: Path, cfg, report: dict, planner, problems: list, records: list[dict], results_all: list[dict],
            sections: list[Section], heading: str = "") -> dict:
     """metrics.json, metrics.md, problems.jsonl and (if `record`) recording.rrd into `out`; `heading`: lines
@@ -267,7 +302,7 @@ def _write(out: Path, cfg, report: dict, planner, problems: list, records: list[
     with open(out / PROBLEMS_JSONL, "w") as f:
         for rec in records:
             f.write(json.dumps(rec) + "\n")
-    print("\n" + (heading + "\n\n" if heading else "") + sources + "\n\n" + table)
+    print("\n" + (heading + "\n\n" if heading else "") + sources + "\n\n" + console_table(rows, cfg.rollout(), out / METRICS_MD))
     written = [METRICS_JSON, METRICS_MD, PROBLEMS_JSONL]
     if cfg.record:
         from samp.eval.recording import write_recording

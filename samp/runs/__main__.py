@@ -190,7 +190,9 @@ def _push(args: list[str]) -> None:
         raise ValueError("say where to push: remote=URL (file:///srv/samp, s3://bucket/samp, hf://datasets/ORG/REPO)")
     url, sent, kept = push_run(_root(_one("push", "run", folders)), opts["remote"],
                                force=flag("force", opts.get("force", "false")))
-    print(f"pushed {url}: {sent} files uploaded, {kept} already there")
+    from samp.console import plural
+
+    print(f"pushed {url}: {plural(sent, 'file')} uploaded, {kept} already there")
 
 
 def _pull(args: list[str]) -> None:
@@ -202,7 +204,9 @@ def _pull(args: list[str]) -> None:
     if got + kept == 0:
         print(f"run {folder} is here already")
     else:
-        print(f"pulled into {folder}: {got} files downloaded, {kept} kept from an earlier try; every file matches "
+        from samp.console import plural
+
+        print(f"pulled into {folder}: {plural(got, 'file')} downloaded, {kept} kept from an earlier try; every file matches "
               "its sha256 and the checkpoints the sha256 its run.json recorded")
 
 

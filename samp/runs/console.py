@@ -38,8 +38,10 @@ class _DropTips(logging.Filter):
 
 
 def quiet_lightning() -> None:
-    """Leave Lightning's tips out of its console and file handlers, and its own internal deprecation notice
-    about `LeafSpec` (raised inside Lightning, nothing a user can change)."""
+    """Leave Lightning's tips out of its console and file handlers, its own internal deprecation notice
+    about `LeafSpec` (raised inside Lightning, nothing a user can change), and its notice of modules in eval
+    mode at the start of training: samp's systems freeze the robot SDF they query on purpose (`requires_grad_
+    (False).eval()` in samp.policy.system), so the notice came with every SAMP run and meant nothing."""
     import warnings
 
     for name in LIGHTNING_LOGGERS:
@@ -47,17 +49,25 @@ def quiet_lightning() -> None:
             if not any(isinstance(f, _DropTips) for f in handler.filters):
                 handler.addFilter(_DropTips())
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
+    warnings.filterwarnings("ignore", message=r"Found \d+ module\(s\) in eval mode at the start of training")
 
 
 class _LogSink:
     """Text written to the console, as a log file should hold it: carriage-return redraws collapsed to the
-    line's last state, terminal control sequences removed. Buffered in memory until `open(path)`."""
+    line's last state, terminal control sequences removed. Buffered in memory until `open(path)`; after
+    `close()` it takes nothing more (see `write`)."""
 
     def __init__(self):
         self._file: io.TextIOBase = io.StringIO()
         self._line = ""  # the current line, not yet ended by "\n"
+        self.closed = False
 
     def write(self, text: str) -> None:
+        # A stream handed out during the run can outlive it: a logging handler or an atexit hook of another
+        # package that kept `sys.stderr` writes through the tee at interpreter exit, after train.log is closed.
+        # Such text still reaches the console (`_Tee`); the log file, finished, takes no more of it.
+        if self.closed:
+            return
         for piece in re.split(r"(\n)", _ANSI.sub("", text)):
             if piece == "\n":
                 self._file.write(self._line + "\n")
@@ -73,6 +83,9 @@ class _LogSink:
         self._file.flush()
 
     def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
         if self._line:
             self._file.write(self._line + "\n")
             self._line = ""
@@ -133,14 +146,15 @@ class RunLog:
         self.path = Path(os.devnull)
 
     def __exit__(self, *exc) -> None:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        sys.stdout, sys.stderr = self._saved
-        if self._handler is not None:
-            for name in (*LIGHTNING_LOGGERS, "samp"):
-                logging.getLogger(name).removeHandler(self._handler)
-        if self.path is not None:
-            self._sink.close()
+        try:
+            sys.stdout.flush()
+            sys.stderr.flush()
+        finally:  # the console streams come back whatever happened, before the file is closed
+            sys.stdout, sys.stderr = self._saved
+            if self._handler is not None:
+                for name in (*LIGHTNING_LOGGERS, "samp"):
+                    logging.getLogger(name).removeHandler(self._handler)
+            self._sink.close()  # unattached: the text held in memory is let go
 
 
 class _SinkStream:

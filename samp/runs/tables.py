@@ -215,6 +215,15 @@ def compare_table(runs: list[Run], metrics: list[str] | None = None) -> tuple[li
     return ["key", *(r.name for r in runs)], rows
 
 
+def _code_line(code: dict) -> str:
+    """The code a run ran, as `show` prints it: samp's version, and the commit (dirty or not) only where one is
+    known (a wheel install or a copy without `.git` records none)."""
+    line = f"samp {code.get('package') or 'of unknown version'}"
+    if code.get("git_commit"):
+        line += f" at {code['git_commit']}" + (" (dirty)" if code.get("git_dirty") else "")
+    return line
+
+
 def show_text(run: Run) -> str:
     """A run's record as text: status and times, lineage, overrides, metrics and files."""
     rec, code = run.record, run.record.get("code_version") or {}
@@ -225,7 +234,7 @@ def show_text(run: Run) -> str:
              f"steps      {rec.get('steps')}   epochs {rec.get('epochs')}   fit time {fmt(rec.get('fit_time_s'))} s",
              f"dataset    {rec.get('dataset_id')}   robot SDF {rec.get('robot_sdf_artifact_id')}",
              f"protocol   {label(run.protocol)}" + "".join(f"   {section} {ref}" for section, ref in benches.items()),
-             f"code       {code.get('package')} at {code.get('git_commit')}" + (" (dirty)" if code.get("git_dirty") else ""),
+             "code       " + _code_line(code),
              f"host       {rec.get('host')}",
              "overrides  " + " ".join(rec.get("overrides") or [])]
     if rec.get("sweep"):

@@ -120,13 +120,12 @@ def main(argv: list[str] | None = None) -> int:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from samp.cli import user_error, wants_help
+    from samp.cli import answer_help, user_error, wants_help
     from samp.runs.folder import Terminated
 
     argv = sys.argv[1:] if argv is None else list(argv)
     if wants_help(argv) or not argv:
-        print(_help(), file=sys.stdout if argv else sys.stderr)
-        return 0 if argv else 2
+        return answer_help(argv, _help)
     bad_input = (HydraException, OmegaConfBaseException, ValueError, FileNotFoundError)
     try:
         show, resolve, argv = _cfg_flags(argv)

@@ -85,7 +85,12 @@ def _hydra_settings(overrides: list[str]) -> list[str]:
     settings = {"hydra.job.config.override_dirname.exclude_keys": "[" + ",".join(f"'{k}'" for k in exclude) + "]",
                 "hydra.sweep.subdir": "${hydra.job.override_dirname}",
                 "hydra.output_subdir": "null",  # samp writes .hydra/ itself; Hydra's copy would overwrite it
-                "hydra.job.name": "train", "hydra.job.chdir": "false"}
+                "hydra.job.name": "train", "hydra.job.chdir": "false",
+                # Logging left as a single run has it (samp composes those with Hydra's API, which configures
+                # none): Hydra's defaults would give Lightning's lines Hydra's format, bring back the tip that
+                # quiet_lightning filters from Lightning's own handler, and write each line a second time into
+                # the member's train.log (the job log's file has that name too).
+                "hydra/job_logging": "none", "hydra/hydra_logging": "none"}
     if sweep is None:
         settings["hydra.sweep.dir"] = "'${paths.runs_dir}/sweeps/${now:%Y-%m-%d_%H-%M-%S}'"
     return [f"{k}={v}" for k, v in settings.items() if k not in keys]
@@ -174,8 +179,11 @@ def multirun(argv: list[str]) -> int:
 
     from samp.paths import conf_dir, project_dir
 
-    argv = canonical_overrides("train", argv)  # +experiment=, +sweep= as experiment=, sweep=
+    from samp.cli import check_override_syntax
+
     try:
+        check_override_syntax("train", argv)  # a bad override named on one line, before Hydra's parser sees it
+        argv = canonical_overrides("train", argv)  # +experiment=, +sweep= as experiment=, sweep=
         settings = _hydra_settings(argv)
         argv = _keys_of_swept_experiments(argv)
         keep_lock()

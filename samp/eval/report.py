@@ -256,7 +256,6 @@ def console_table(rows: list[tuple[str, str, dict]], cfg, full: Path) -> str:
     the whole table. `cfg`: the `RolloutConfig` (its stopping tolerance is named)."""
     import textwrap
 
-    from samp.eval.config import tolerance_label
     from samp.eval.metrics import metric
 
     columns = [(metric(name), title) for name, title in CONSOLE_COLUMNS]
@@ -270,7 +269,7 @@ def console_table(rows: list[tuple[str, str, dict]], cfg, full: Path) -> str:
         return "| " + " | ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))) + " |"
 
     lines = [line(header), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *(line(r) for r in body)]
-    note = (f"Rates in percent, reached within {tolerance_label(cfg.position_tolerance)} (success: reached with no "
+    note = (f"Rates in percent, reached within {100 * cfg.position_tolerance:g} cm (success: reached with no "
             "violation); time: seconds per problem solved alone, mean ± std. The full table (95 % intervals, every "
             f"tolerance, path length, self-collision, joint limits, step time, throughput) is in {full}")
     return "\n".join(lines) + "\n\n" + textwrap.fill(note, CONSOLE_WIDTH, break_long_words=False, break_on_hyphens=False) + "\n"

@@ -89,8 +89,9 @@ def _hydra_settings(overrides: list[str]) -> list[str]:
                 # Logging left as a single run has it (samp composes those with Hydra's API, which configures
                 # none): Hydra's defaults would give Lightning's lines Hydra's format, bring back the tip that
                 # quiet_lightning filters from Lightning's own handler, and write each line a second time into
-                # the member's train.log (the job log's file has that name too).
-                "hydra/job_logging": "none", "hydra/hydra_logging": "none"}
+                # the member's train.log (the job log's file has that name too). Hydra's own lines (the sweep
+                # folder, the members launched) stay, plain, through its own loggers only (conf/hydra/hydra_logging).
+                "hydra/job_logging": "none", "hydra/hydra_logging": "samp"}
     if sweep is None:
         settings["hydra.sweep.dir"] = "'${paths.runs_dir}/sweeps/${now:%Y-%m-%d_%H-%M-%S}'"
     return [f"{k}={v}" for k, v in settings.items() if k not in keys]

@@ -5,7 +5,8 @@ artifacts, a dataset as an input, and an evaluation logged as a section of its r
 
 The store: `tracking.uri` of the training config, else `$SAMP_TRACKING_URI`, else `sqlite:///<runs
 folder>/mlflow.db` (a local store, no server; its artifacts in `<runs folder>/mlflow-artifacts/`); `off` in
-either place turns tracking off. A run's store and MLflow run id are kept in its run.json (`loggers.mlflow`).
+either place turns tracking off. A run's store and MLflow run id are kept in its run.json (`loggers.mlflow`);
+a local store recorded there is followed only on the machine that has it (`tracked_here`: a pulled run).
 MLflow is imported only here, inside the functions, so `--help` and the commands that do not track stay fast.
 """
 
@@ -13,12 +14,13 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 
-from samp.names import TRACKING_ARTIFACTS_DIR, TRACKING_DB
+from samp.names import RUN_JSON, TRACKING_ARTIFACTS_DIR, TRACKING_DB
 
 __all__ = ["EVAL_EXPERIMENT", "OFF", "TRACKING_ENV", "client", "experiment_id", "flatten", "log_dataset", "log_files",
-           "log_params", "resolve_uri", "track_evaluation", "tracked_at"]
+           "log_params", "resolve_uri", "track_evaluation", "tracked_at", "tracked_here"]
 
 TRACKING_ENV = "SAMP_TRACKING_URI"
 OFF = "off"
@@ -37,9 +39,15 @@ def resolve_uri(configured: str | None, runs_dir: str | Path) -> str | None:
     return str(uri) if uri is not None else f"sqlite:///{Path(runs_dir).resolve() / TRACKING_DB}"
 
 
+def _local_db(uri: str) -> Path | None:
+    """The database file of a local `sqlite:///` store, None for other stores."""
+    return Path(uri.removeprefix("sqlite:///")) if uri.startswith("sqlite:///") else None
+
+
 def _local_root(uri: str) -> Path | None:
     """The runs folder of a local `sqlite:///` store (where its artifacts go), None for other stores."""
-    return Path(uri.removeprefix("sqlite:///")).parent if uri.startswith("sqlite:///") else None
+    db = _local_db(uri)
+    return None if db is None else db.parent
 
 
 def client(uri: str):
@@ -96,6 +104,32 @@ def tracked_at(record: dict) -> tuple[str, str] | None:
     return (info["tracking_uri"], info["run_id"]) if info.get("run_id") and info.get("tracking_uri") else None
 
 
+def tracked_here(record: dict, instead: str) -> tuple[str, str] | None:
+    """`tracked_at(record)` when that store is reachable from this machine and holds the run, else None with a
+    one-line note that `instead` (this machine's store) takes the run. A local store (`sqlite:///PATH`) is a
+    file of the machine the run trained on: a pulled run's record names the pusher's path, which is missing
+    here or, in a clone at the same path, is another store without that run. Opening it would create it (or
+    log into a run it lacks), so it is followed only when its file exists and holds the run. Servers are
+    followed as recorded: a team's server is the same store from every machine."""
+    previous = tracked_at(record)
+    db = _local_db(previous[0]) if previous else None
+    if db is None:
+        return previous
+    if not db.is_file():
+        why = "is not on this machine"
+    else:
+        from mlflow.exceptions import MlflowException
+
+        try:
+            client(previous[0]).get_run(previous[1])
+            return previous
+        except MlflowException:
+            why = f"does not hold its run {previous[1]}"
+    print(f"note: {RUN_JSON} records the MLflow store {previous[0]}, which {why} (a run from another machine?); "
+          f"tracking into {instead} instead", file=sys.stderr, flush=True)
+    return None
+
+
 def flatten(node, prefix: str = "") -> dict:
     """{"a": {"b": 1}, "c": [2]} -> {"a.b": 1, "c": [2]}: nested dicts become dotted keys; lists stay."""
     if not isinstance(node, dict):
@@ -146,7 +180,6 @@ def track_evaluation(out: Path, report: dict, metrics: dict[str, float], run_pat
     (`eval-2/...`), or as a run of the experiment `eval` when no run was evaluated (its dataset, under
     `datasets_root`, as an input) or the run was not tracked. `metrics`: the flat `eval/...` metrics, renamed
     to the section. Returns the MLflow run id (None when tracking is off)."""
-    from samp.names import RUN_JSON
     from samp.paths import runs_root
 
     configured = resolve_uri(None, runs_root())
@@ -154,13 +187,14 @@ def track_evaluation(out: Path, report: dict, metrics: dict[str, float], run_pat
         return None
     section = _section(out, run_path)
     record = json.loads((Path(run_path) / RUN_JSON).read_text()) if run_path is not None else {}
-    previous = tracked_at(record)
+    previous = tracked_here(record, configured)
     uri = previous[0] if previous else configured
     mlflow_client = client(uri)
     if previous:
         run_id = previous[1]
     else:
-        # (a run trained with tracking off: its evaluations are runs of their own, its run.json left as it is)
+        # (a run trained with tracking off, or in another machine's local store: its evaluations are runs of
+        # their own, its run.json left as it is)
         name = record.get("experiment") or EVAL_EXPERIMENT
         tags = {"samp.run_dir": str(run_path)} if run_path is not None else None
         run = mlflow_client.create_run(experiment_id(mlflow_client, uri, name), tags=tags,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from samp.eval.report import benchmark_refs
 from samp.tracking import (benchmark_tags, client, experiment_id, log_dataset, log_files, resolve_uri,
-                           tracked_at)
+                           tracked_here)
 
 __all__ = ["finish_training", "sweep_parent", "training_logger"]
 
@@ -29,7 +29,7 @@ SWEEP_STATE_PREFIX = ".mlflow-sweep-"  # + a hash of the store's URI: the sweep'
 def training_logger(cfg, folder):
     """A Lightning MLFlowLogger for the training run in `folder` (None when tracking is off): params from its
     resolved config, tags from its lineage, a child of its sweep's run when it is a sweep member, and the same
-    MLflow run (in the store it was started in) when the folder is resumed. Rank 0 only."""
+    MLflow run (in the store it was started in, when that store is here) when the folder is resumed. Rank 0 only."""
     from pytorch_lightning.loggers import MLFlowLogger
 
     from samp.runs.lineage import flatten, lineage_tags
@@ -38,7 +38,7 @@ def training_logger(cfg, folder):
     if configured is None:  # off wins, a resumed run's store included
         return None
     record = folder.read()
-    previous = tracked_at(record)
+    previous = tracked_here(record, configured)  # a pulled run's local store is the pusher's, not followed
     uri = previous[0] if previous else configured
     mlflow_client = client(uri)
     sweep = record.get("sweep") or {}

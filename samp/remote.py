@@ -8,8 +8,9 @@ A remote is any fsspec URL (`file:///srv/samp`, `s3://bucket/team`, `hf://datase
 
 `index.json` maps each file's path inside the entry to its sha256 and size, and carries `index_sha256`,
 the sha256 of its own canonical JSON without that key. A push uploads the blobs first and the index last,
-so an entry whose index exists is complete; a blob already there with the right size is not sent again
-(an interrupted push continues where it stopped). A pull downloads into a staging folder the caller
+so an entry whose index exists is complete; a blob already there whose bytes hash to its name is not sent
+again (an interrupted push continues where it stopped), and one whose bytes do not (damaged, or cut short
+by a killed upload) is uploaded anew: a push reads back every blob it keeps, once. A pull downloads into a staging folder the caller
 names, checks every file's sha256 as it arrives, keeps what is already there and verified (an interrupted
 pull continues), and never publishes: the caller verifies the whole and renames the folder into place.
 
@@ -70,24 +71,33 @@ def _index_hash(index: dict) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
-def _size(fs, path: str) -> int | None:
+def _holds(fs, path: str, info: dict) -> bool:
+    """Whether the remote file `path` holds the bytes `info` ({"sha256", "size"}) names: its size, then the
+    sha256 of its bytes, read back (the size alone would keep a same-size damaged blob; no file system
+    here reports a sha256 of its own for every file)."""
     try:
-        return int(fs.info(path)["size"])
+        if int(fs.info(path)["size"]) != info["size"]:
+            return False
+        digest = hashlib.sha256()
+        with fs.open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                digest.update(chunk)
     except FileNotFoundError:
-        return None
+        return False
+    return digest.hexdigest() == info["sha256"]
 
 
 def push_folder(folder: Path, files: dict[str, dict], root: str, entry: str, meta: dict,
                 force: bool = False) -> tuple[int, int]:
     """Upload `files` ({path inside `folder`: {"sha256", "size"}}, already verified by the caller) as blobs
     under the remote `root`, then the index of `entry` (a path below `root`, e.g. "datasets/NAME@ID")
-    with `meta` beside the file table. A blob already there with the right size is kept unless `force`
-    (which replaces damaged blobs). Returns (files uploaded, files already there)."""
+    with `meta` beside the file table. A blob already there whose bytes hash to its sha256 is kept unless
+    `force` (every blob uploaded anew); any other is replaced. Returns (files uploaded, files already there)."""
     fs, root_path = open_remote(root)
     sent = kept = 0
     for rel, info in sorted(files.items()):
         blob = blob_url(root_path, info["sha256"])
-        if not force and _size(fs, blob) == info["size"]:  # whole: blobs are written before an index names them
+        if not force and _holds(fs, blob, info):
             kept += 1
             continue
         fs.makedirs(blob.rsplit("/", 1)[0], exist_ok=True)
@@ -154,7 +164,7 @@ def pull_folder(root: str, entry: str, index: dict, staging: Path) -> tuple[int,
             part.unlink()
             raise RemoteError(f"remote file {rel} of {join(root, entry)} is damaged: sha256 expected {info['sha256']}, "
                               f"actual {actual} ({blob_url(root, info['sha256'])}); nothing was published locally. "
-                              "Push it again from an intact copy with force=true (every file uploaded anew)")
+                              "Push it again from an intact copy (a push replaces every blob whose bytes differ)")
         part.replace(dest)
         got += 1
     wanted = {(staging / rel).resolve() for rel in index["files"]}

@@ -272,12 +272,12 @@ def _pull(args: list[str]) -> None:
     ref, opts = _parse(args, needs_ref=True, keys=("remote",))
     folder, got, kept = pull_dataset(ref, opts.get("remote"), _root(opts))
     if got + kept == 0:
-        print(f"dataset {folder.parent.name}@{folder.name} is here already: {folder}")
+        print(f"dataset {folder.parent.name}@{folder.name} is here already, and every file matches its sha256: {folder}")
     else:
         from samp.console import plural
 
-        print(f"pulled {folder.parent.name}@{folder.name} into {folder}: {plural(got, 'file')} downloaded, {kept} kept from an "
-              "earlier try; every file matches its sha256 and the dataset its id")
+        print(f"pulled {folder.parent.name}@{folder.name} into {folder}: {plural(got, 'file')} downloaded, {kept} kept "
+              "(intact); every file matches its sha256 and the dataset its id")
 
 
 def _detour_line(wanted, episodes: list[dict], eval_problems: list[dict]) -> str:

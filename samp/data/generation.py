@@ -40,7 +40,7 @@ from samp.data.lifecycle import die_with_parent, drain, end_workers, exit_withou
 from samp.data.mcap_io import link_poses, stacked
 from samp.data.merging import (EVAL_PREFIX, MERGING, MergeLockTimeout, build_manifest, link_or_copy, merge_lock,
                                 move_aside, remove_trash)
-from samp.data.registry import SCENE_FILE_VERSION, datasets_root, finalize_dataset
+from samp.data.registry import SCENE_FILE_VERSION, DatasetError, datasets_root, finalize_dataset
 from samp.data.spec import DatasetSpec, SceneJob, load_spec
 from samp.data.workfolder import SIDECAR, clear_stale, generation_lock, removed_on_error, unfinished, write_json
 
@@ -229,10 +229,25 @@ def finished_dataset(spec: DatasetSpec, root: Path | None = None) -> Path | None
     return Path(max(made, key=lambda d: d["created"])["path"]) if made else None
 
 
+def _intact(spec: DatasetSpec, done: Path) -> Path:
+    """`done`, the finished dataset of `spec`, after verifying it as `python -m samp.data verify` does; a
+    damaged one is a DatasetError naming the damage and what to do (it is never deleted here)."""
+    from samp.data.registry import verify_dataset
+
+    problems = verify_dataset(done)
+    if problems:
+        more = f" and {len(problems) - 1} more" if len(problems) > 1 else ""
+        raise DatasetError(f"{spec.name}: the dataset already generated from this spec, {spec.name}@{done.name} "
+                           f"({done}), is damaged ({problems[0]}{more}); nothing was planned. Restore it from a copy, "
+                           "or move it aside (or delete it) and run the same command again to generate it anew")
+    return done
+
+
 def _already_there(spec: DatasetSpec, root: Path | None, work: Path) -> Path | None:
-    """A finished dataset of this spec when no generation of it is under way (its work folder is gone)."""
+    """A finished dataset of this spec, verified, when no generation of it is under way (its work folder is gone)."""
     done = finished_dataset(spec, root)
     if done is not None and not any(work.glob("*.mcap")):
+        _intact(spec, done)
         print(f"{spec.name}: already generated from this spec as {spec.name}@{done.name} ({done}); nothing to plan "
               "or merge", flush=True)
         return done
@@ -346,6 +361,7 @@ def _merged_already(spec: DatasetSpec, root: Path) -> Path | None:
     """The dataset this spec was merged into (its work folder is gone), or None."""
     done = finished_dataset(spec, root)
     if done is not None:
+        _intact(spec, done)
         print(f"{spec.name}: already merged into {spec.name}@{done.name}")
     return done
 

@@ -86,7 +86,8 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
     """Hash the data files in `tmp`, write its manifest, and rename it to `<root>/<name>/<id>/`.
 
     If a dataset with the same id exists, its content is identical by construction: `tmp` is removed
-    and the existing folder returned, so nothing is overwritten.
+    and the existing folder returned, so nothing is overwritten. An existing one that is damaged (its
+    manifest or a file's sha256) is not returned as the new dataset: DatasetError naming it and the fix.
     """
     check_name(name, "dataset name")
     root = Path(root) if root else datasets_root()
@@ -113,8 +114,22 @@ def finalize_dataset(tmp: Path, name: str, manifest: dict, root: Path | None = N
     except OSError:
         if not (dest / MANIFEST).is_file():  # not a concurrent writer of the same content: a real failure
             raise
+        _refuse_damaged(dest, name)
         shutil.rmtree(tmp)
     return dest
+
+
+def _refuse_damaged(dest: Path, name: str) -> None:
+    """DatasetError when the dataset already at `dest` (the id just made) is damaged: the caller's intact
+    copy would otherwise be dropped for it."""
+    try:
+        problems = file_problems(dest, read_manifest(dest, check_sizes=False))
+    except DatasetError as err:
+        problems = [str(err).split("; ")[0]]
+    if problems:
+        raise DatasetError(f"a dataset {name}@{dest.name} is here already and damaged ({dest}: {problems[0]}); the "
+                           "copy just made is not put in its place. Move the damaged one aside (or delete it) and "
+                           "run the same command again")
 
 
 def read_manifest(folder: Path, check_sizes: bool = True) -> dict:

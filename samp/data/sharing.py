@@ -10,15 +10,23 @@ A pull is published only whole: the files arrive in `<root>/NAME/.pull-ID/`, eac
 sha256 the index gives; the folder is then verified as `python -m samp.data verify` would (the manifest's
 own hash, every file against the manifest, the content id against `ID`) and renamed to `<root>/NAME/ID/`.
 An interrupted pull leaves the hidden staging folder, which the next pull continues.
+
+A dataset already here is verified first, as `verify` does: an intact one is "here already"; a damaged one
+is repaired from the remote (its files that are intact are kept, the others downloaded and checked) and
+the damaged copy is moved aside to `<root>/NAME/.damaged-ID-<time>/`, whole, with anything else that was
+in its folder; nothing of it is deleted.
 """
 
 from __future__ import annotations
 
 import re
 import shutil
+import time
 from pathlib import Path
 
-from samp.data.registry import ID_LENGTH, MANIFEST, DatasetError, datasets_root, file_problems, read_manifest, resolve_ref
+from samp.data.registry import (ID_LENGTH, MANIFEST, DatasetError, datasets_root, file_problems, read_manifest, resolve_ref,
+                                verify_dataset)
+from samp.data.merging import link_or_copy
 from samp.paths import check_name, file_sha256
 from samp.remote import RemoteError, join, open_remote, pull_folder, push_folder, read_index
 
@@ -88,7 +96,8 @@ def push_dataset(ref: str | Path, remote: str, root: Path | None = None, force: 
 def pull_dataset(ref: str, remote: str | None = None, root: Path | None = None) -> tuple[Path, int, int]:
     """Pull `ref` (NAME@ID with `remote`, or a remote reference `<remote>/datasets/NAME@ID`) into the local
     datasets folder. Returns (the local folder, files downloaded, files kept); (folder, 0, 0) when that
-    dataset is here already."""
+    dataset is here already and intact. A damaged local copy is repaired from the remote and moved aside
+    (module docstring); RemoteError naming the damage when the remote cannot repair it."""
     if is_remote(ref):
         remote, name, ident = split_remote_ref(ref)
     else:
@@ -98,18 +107,33 @@ def pull_dataset(ref: str, remote: str | None = None, root: Path | None = None) 
                              f"(got dataset={ref!r}{f' remote={remote}' if remote else ''})")
     check_name(name, "dataset name")
     root = Path(root) if root else datasets_root()
-    if len(ident) == ID_LENGTH and (root / name / ident / MANIFEST).is_file():
-        return root / name / ident, 0, 0  # here already: no need to reach the remote
+    damage = _damage(root / name / ident) if len(ident) == ID_LENGTH else None
+    if damage == []:
+        return root / name / ident, 0, 0  # here already and intact: no need to reach the remote
     full = remote_entry(remote, name, ident)
-    ident = full.partition("@")[2]
+    if full.partition("@")[2] != ident:  # an id prefix: the full id names the local folder
+        ident = full.partition("@")[2]
+        damage = _damage(root / name / ident)
+        if damage == []:
+            return root / name / ident, 0, 0
     dest = root / name / ident
-    if (dest / MANIFEST).is_file():
-        return dest, 0, 0
     entry = f"{DATASETS}/{full}"
-    index = read_index(remote, entry)
     staging = root / name / f".pull-{ident}"
-    got, kept = pull_folder(remote, entry, index, staging)
-    _check_pulled(staging, name, ident, index, join(remote, entry))
+    try:
+        index = read_index(remote, entry)
+        if damage:  # its intact files are kept (pull_folder re-hashes each), the others downloaded
+            _seed(staging, dest, index)
+        got, kept = pull_folder(remote, entry, index, staging)
+        _check_pulled(staging, name, ident, index, join(remote, entry))
+    except RemoteError as err:
+        if not damage:
+            raise
+        raise RemoteError(f"dataset {name}@{ident} here ({dest}) is damaged ({_first(damage)}), and {err}") from None
+    if damage:
+        aside = root / name / f".damaged-{ident}-{time.strftime('%Y%m%d-%H%M%S')}"
+        dest.rename(aside)
+        print(f"dataset {name}@{ident} in {dest} was damaged ({_first(damage)}): repaired from {join(remote, entry)}; "
+              f"the damaged copy is kept in {aside} (delete it once you have looked)", flush=True)
     try:
         staging.rename(dest)
     except OSError:
@@ -117,6 +141,24 @@ def pull_dataset(ref: str, remote: str | None = None, root: Path | None = None) 
             raise
         shutil.rmtree(staging)
     return dest, got, kept
+
+
+def _damage(folder: Path) -> list[str] | None:
+    """What `verify` finds wrong with the local dataset `folder` ([] when intact), None when it is not here."""
+    return verify_dataset(folder) if (folder / MANIFEST).is_file() else None
+
+
+def _first(problems: list[str]) -> str:
+    return problems[0] + (f" and {len(problems) - 1} more" if len(problems) > 1 else "")
+
+
+def _seed(staging: Path, dest: Path, index: dict) -> None:
+    """Hard links (copies where refused) in `staging` of the files of the damaged `dest` that `index` names."""
+    for rel in index["files"]:
+        src, dst = dest / rel, staging / rel
+        if src.is_file() and not src.is_symlink() and not dst.exists():
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            link_or_copy(src, dst)
 
 
 def _check_pulled(staging: Path, name: str, ident: str, index: dict, url: str) -> None:
@@ -133,4 +175,4 @@ def _check_pulled(staging: Path, name: str, ident: str, index: dict, url: str) -
     problems = [f"{rel}: not in {url}'s index" for rel in missing] or file_problems(staging, manifest)
     if problems:
         raise RemoteError(f"{url} is not the dataset its manifest describes: {'; '.join(problems[:3])}; nothing was "
-                          "published locally. Push the dataset again from an intact copy with force=true")
+                          "published locally. Push the dataset again from an intact copy")

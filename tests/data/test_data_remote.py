@@ -151,10 +151,10 @@ def test_damaged_remote_file_is_refused_naming_it(smoke, remote, tmp_path):
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert re.search(rf"remote file scene_0001\.mcap of {re.escape(remote)}/datasets/smoke@{ident} is damaged: sha256 "
                      rf"expected {hashes['scene_0001.mcap']}, actual [0-9a-f]{{64}}", proc.stderr), proc.stderr
-    assert "nothing was published locally" in proc.stderr and "with force=true" in proc.stderr
+    assert "nothing was published locally" in proc.stderr and "Push it again from an intact copy" in proc.stderr
     assert _published(root, "smoke") == [], "a damaged pull publishes nothing"
     again = _ok(_data("push", f"smoke@{ident}", f"remote={remote}", f"root={smoke[0]}"))
-    assert f"0 files uploaded, {len(hashes)} already there" in again, "a damaged blob of the right size looks whole"
+    assert f"1 file uploaded, {len(hashes) - 1} already there" in again, "a damaged blob of the right size was kept"
     forced = _ok(_data("push", f"smoke@{ident}", f"remote={remote}", "force=true", f"root={smoke[0]}"))
     assert f"{len(hashes)} files uploaded, 0 already there" in forced, forced
     _ok(_data("pull", f"smoke@{ident}", f"remote={remote}", f"root={root}"))
@@ -209,7 +209,7 @@ def test_interrupted_push_and_pull_continue(smoke, tmp_path):
     staged = {p.name: p.stat().st_ino for p in (root / "smoke" / f".pull-{ident}").rglob("*") if p.is_file()}
     assert len(staged) == 1, staged
     out = _ok(_cli("samp.data", "pull", f"smoke@{ident}", f"remote={remote}", f"root={root}"))
-    assert f"{len(hashes) - 1} files downloaded, 1 kept from an earlier try" in out, out
+    assert f"{len(hashes) - 1} files downloaded, 1 kept (intact)" in out, out
     assert _hashes(root / "smoke" / ident) == hashes
     (kept,) = staged.items()  # the file the killed pull verified is the one published
     assert (root / "smoke" / ident / kept[0]).stat().st_ino == kept[1]

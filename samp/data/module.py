@@ -196,7 +196,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
         ds = open_dataset(self.ref, Path(self.root) if self.root else None)
         if self.n_e not in ds.resolutions:
             raise ValueError(f"dataset {ds.name}@{ds.id} stores grids at n_e in {ds.resolutions}, not {self.n_e}: set "
-                             f"data.n_e to one of them or regenerate the dataset with n_e in its spec's resolutions")
+                             f"datamodule.n_e to one of them or regenerate the dataset with n_e in its spec's resolutions")
         if len(ds) == 0:
             raise ValueError(f"dataset {ds.name}@{ds.id} holds no successful trajectories to train on")
         self.ds, self.dataset_id = ds, f"{ds.name}@{ds.id}"

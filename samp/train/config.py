@@ -200,6 +200,11 @@ def compose_train_config(overrides: list[str]):
     if trainer.get("max_epochs") == -1 and trainer.get("max_steps", -1) in (-1, None):
         raise ValueError("trainer.max_epochs=-1 with trainer.max_steps=-1 would train forever; give "
                          "trainer.max_epochs=N (epochs) or trainer.max_steps=N (optimizer steps)")
+    for key in ("max_steps", "max_epochs"):  # Lightning stops before the first step: a run "completed" untrained
+        if trainer.get(key) == 0:
+            raise ValueError(f"trainer.{key}=0 trains nothing, and the run would be recorded as completed with an "
+                             f"untrained model; give trainer.{key}=N with N >= 1 (to evaluate without training, use "
+                             "`python -m samp.eval`)")
     return cfg
 
 

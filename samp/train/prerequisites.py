@@ -162,11 +162,34 @@ def _dataset(cfg) -> None:
     generate(ref, workers=int(cfg.build_missing.workers), root=root)
 
 
-def _check_evaluable(cfg) -> None:
-    """Fail before training, not after it, when the evaluation after training cannot run on the dataset."""
+def _manifest(cfg) -> dict:
+    """The manifest of the DataModule's dataset (the manifest alone: no decoding)."""
     from samp.data import read_manifest, resolve_ref
 
-    manifest = read_manifest(resolve_ref(str(cfg.datamodule.dataset), _datasets_root(cfg)))  # the manifest alone: no decoding
+    return read_manifest(resolve_ref(str(cfg.datamodule.dataset), _datasets_root(cfg)))
+
+
+def _check_resolution(cfg, manifest: dict) -> None:
+    """Fail before the run folder exists when the dataset stores no anchor grids at `datamodule.n_e` (the
+    resolutions its spec or import asked for, in its manifest; older manifests say nothing: the DataModule
+    checks the scene files)."""
+    from samp.data import available_specs
+
+    stored, n_e = (manifest.get("config") or {}).get("resolutions"), cfg.datamodule.get("n_e")
+    if not stored or n_e is None or int(n_e) in stored:
+        return
+    name, wanted = manifest.get("name"), sorted({*stored, int(n_e)})
+    if name in available_specs():
+        make = paste("python -m samp.data generate", dataset=name) + f" dataset.resolutions=[{','.join(map(str, wanted))}]"
+    else:
+        make = f"import it again with resolutions={','.join(map(str, wanted))} (`python -m samp.data import ...`)"
+    raise ValueError(f"dataset {name}@{manifest.get('id')} stores anchor grids at n_e in {list(stored)}, not {n_e}: "
+                     f"set datamodule.n_e={stored[0]} (or another of them), or make a dataset that stores {n_e}: "
+                     f"{make}")
+
+
+def _check_evaluable(cfg, manifest: dict) -> None:
+    """Fail before training, not after it, when the evaluation after training cannot run on the dataset."""
     if not (manifest.get("counts") or {}).get("eval_problems"):
         name = manifest.get("name")
         raise ValueError(f"dataset {name}@{manifest.get('id')} stores no evaluation problems (it predates them), so "
@@ -182,8 +205,10 @@ def prepare(cfg, overrides: list[str] | None = None) -> None:
     if cfg.datamodule.get("dataset") is not None:
         if cfg.build_missing.dataset:
             _dataset(cfg)
+        manifest = _manifest(cfg)
+        _check_resolution(cfg, manifest)
         if cfg.evaluation.problems:
-            _check_evaluable(cfg)
+            _check_evaluable(cfg, manifest)
     if cfg.system.get("robot_sdf"):
         cfg.system.robot_sdf = _robot_sdf(cfg)
     if cfg.datamodule.get("dataset") is not None and (cfg.get("dagger") or {}).get("rounds"):

@@ -19,8 +19,8 @@ from pathlib import Path
 
 from samp.names import RUN_JSON, TRACKING_ARTIFACTS_DIR, TRACKING_DB
 
-__all__ = ["EVAL_EXPERIMENT", "OFF", "TRACKING_ENV", "client", "experiment_id", "flatten", "log_dataset", "log_files",
-           "log_params", "resolve_uri", "track_evaluation", "tracked_at", "tracked_here"]
+__all__ = ["EVAL_EXPERIMENT", "EXPERIMENT_KIND", "OFF", "TRACKING_ENV", "client", "experiment_id", "flatten",
+           "log_dataset", "log_files", "log_params", "resolve_uri", "track_evaluation", "tracked_at", "tracked_here"]
 
 TRACKING_ENV = "SAMP_TRACKING_URI"
 OFF = "off"
@@ -28,6 +28,9 @@ EVAL_EXPERIMENT = "eval"  # evaluations of a planner without a run folder
 # Not uploaded: checkpoints and exported networks (large, and the run folder keeps them), other loggers' folders.
 SKIPPED = ("checkpoints", "tensorboard", "wandb", ".hydra")
 SKIPPED_SUFFIXES = (".ckpt", ".pt", ".tmp")
+# The experiment tag MLflow's UI reads to choose its layout (mlflow 3.x, server/js: `ExperimentKind`): without
+# it the UI may open an experiment in its GenAI layout (traces, prompts); samp's runs are model training.
+EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
 
 
 def resolve_uri(configured: str | None, runs_dir: str | Path) -> str | None:
@@ -79,19 +82,22 @@ def _artifact_location(uri: str, experiment: str) -> str | None:
 
 
 def experiment_id(mlflow_client, uri: str, name: str) -> str:
-    """The id of experiment `name`, created (with a local store's artifact folder) when missing."""
+    """The id of experiment `name`, created (with a local store's artifact folder) when missing, and marked as
+    model training for MLflow's UI (`EXPERIMENT_KIND`) unless it is marked already."""
     from mlflow.exceptions import MlflowException
 
     found = mlflow_client.get_experiment_by_name(name)
-    if found is not None:
-        return found.experiment_id
-    try:
-        return mlflow_client.create_experiment(name, artifact_location=_artifact_location(uri, name))
-    except MlflowException:  # made meanwhile by another process (sweep members in parallel), else raised again
-        found = mlflow_client.get_experiment_by_name(name)
-        if found is None:
-            raise
-        return found.experiment_id
+    if found is None:
+        try:
+            return mlflow_client.create_experiment(name, artifact_location=_artifact_location(uri, name),
+                                                   tags=dict([EXPERIMENT_KIND]))
+        except MlflowException:  # made meanwhile by another process (sweep members in parallel), else raised again
+            found = mlflow_client.get_experiment_by_name(name)
+            if found is None:
+                raise
+    if EXPERIMENT_KIND[0] not in found.tags:  # an experiment made before samp set the kind, or by hand
+        mlflow_client.set_experiment_tag(found.experiment_id, *EXPERIMENT_KIND)
+    return found.experiment_id
 
 
 def _previous(record: dict) -> dict:

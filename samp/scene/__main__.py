@@ -1,8 +1,9 @@
-"""`python -m samp.scene show scene=NAME [seed=S] [n_e=N] [out=FILE.rrd]`
+"""`python -m samp.scene show scene=NAME [seed=S] [n_e=N] [out=FILE.rrd]`, or `show file=PATH` for a scene file
 
-Generates a scene, prints a summary of it and of its anchor grid (exact signed distances), and writes a
-Rerun recording with the obstacle meshes, three orthogonal colour-mapped SDF slices through the target
-(or the grid centre) with their zero level sets, and the anchors coloured by signed distance.
+Generates a scene (or reads one from a file, `samp.scene.files`), prints a summary of it and of its anchor
+grid (exact signed distances), and writes a Rerun recording with the obstacle meshes, three orthogonal
+colour-mapped SDF slices through the target (or the grid centre) with their zero level sets, and the
+anchors coloured by signed distance.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ import numpy as np
 from samp.cli import compose, output_path, paste, run_command
 
 USAGE = """usage: python -m samp.scene show scene=NAME [seed=S] [n_e=N] [out=FILE.rrd]
-  show    generate a scene, print it and its anchor grid; write a Rerun recording (obstacles, SDF slices,
-          anchors)"""
+       python -m samp.scene show file=PATH [n_e=N] [out=FILE.rrd]
+  show    generate a scene (or read a scene file), print it and its anchor grid; write a Rerun recording
+          (obstacles, SDF slices, anchors)"""
 
 
 def slice_indices(scene, n_e: int) -> np.ndarray:
@@ -36,8 +38,10 @@ def summary(scene, grid: np.ndarray, slices: np.ndarray) -> str:
     spacing = (hi - lo) / (n_e - 1)
     kinds = Counter(o.kind for o in scene.obstacles)
     meta = scene.meta
-    lines = [f"scene {scene.name}: generator {meta.get('generator', '?')}, seed {meta.get('seed', '?')}"
-             f" (attempt {meta.get('attempt', '?')})",
+    made = (f"from file {meta['file']} ({meta.get('source', 'scene')})" if "file" in meta else
+            f"generator {meta.get('generator', '?')}, seed {meta.get('seed', '?')} "
+            f"(attempt {meta.get('attempt', '?')})")
+    lines = [f"scene {scene.name}: {made}",
              f"  content hash  {scene.content_hash()[:12]}",
              f"  obstacles     {len(scene.obstacles)}: " + ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))]
     if scene.target is None:
@@ -67,12 +71,17 @@ def show(overrides: list[str]) -> Path:
     from samp.scene.registry import scene_from_config
     from samp.scene.viz import SDF_COLORMAP, anchor_stride, log_anchor_points, log_scene_obstacles, log_sdf_slice
 
-    scene = scene_from_config(OmegaConf.to_container(cfg.scene, resolve=True), int(cfg.seed))
+    if cfg.file:
+        from samp.scene.files import load_scene_file, resolve_scene_file
+
+        scene = load_scene_file(resolve_scene_file(str(cfg.file)))
+    else:
+        scene = scene_from_config(OmegaConf.to_container(cfg.scene, resolve=True), int(cfg.seed))
     grid = scene.anchor_grid(cfg.n_e).numpy()  # (n_e, n_e, n_e), indexed (x, y, z); n_e is checked there
     slices = slice_indices(scene, grid.shape[0])
     print(summary(scene, grid, slices))
     vmax = float(np.abs(grid).max()) if cfg.color_range is None else float(cfg.color_range)
-    out = output_path(cfg.out)
+    out = output_path(cfg.out if not cfg.file or _given("out", overrides) else _file_out(scene.name))
     rec = rr.RecordingStream("samp_scene", recording_id=f"scene-{scene.name}-{scene.content_hash()[:12]}")
     log_scene_obstacles(rec, scene)
     for axis in range(3):
@@ -84,6 +93,17 @@ def show(overrides: list[str]) -> Path:
           f"colours {SDF_COLORMAP} over [-{vmax:.3f}, {vmax:.3f}] m: red inside, white on surfaces, blue outside")
     print(f"\nwrote {out}; open it with `{paste('rerun', out)}`")
     return out
+
+
+def _given(key: str, overrides: list[str]) -> bool:
+    return any(o.split("=", 1)[0].lstrip("+") == key for o in overrides)
+
+
+def _file_out(name: str) -> str:
+    """The default recording of a scene file: beside the generated scenes', under the file's scene name."""
+    import os
+
+    return str(Path(os.environ.get("SAMP_RUNS_DIR", "runs")) / "scene" / f"file_{name}" / "scene.rrd")
 
 
 def _help() -> str:

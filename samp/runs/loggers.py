@@ -6,6 +6,7 @@
 - `tensorboard_logger`: Lightning's TensorBoardLogger, event files in `<run>/tensorboard/`.
 - `wandb_logger`: Lightning's WandbLogger, offline by default, tagged with the run's lineage; its run id is
   kept in run.json so a resumed run logs into the same W&B run.
+- `LogEveryEpoch`: a callback of every training run, so every epoch logs its training loss at least once.
 
 MLflow is no logger option: every run is tracked there unless tracking is off (`samp.runs.tracking`, which
 makes its logger). `finish_loggers` adds what is only known after training (dataset id, robot SDF id,
@@ -17,6 +18,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+from pytorch_lightning import Callback
 from pytorch_lightning.loggers import Logger, MLFlowLogger, WandbLogger
 from pytorch_lightning.utilities import rank_zero_only
 
@@ -25,7 +27,7 @@ from samp.runs.distributed import is_rank_zero
 from samp.runs.folder import RunFolder
 from samp.runs.lineage import lineage_tags
 
-__all__ = ["RunCSVLogger", "finish_loggers", "tensorboard_logger", "wandb_logger"]
+__all__ = ["LogEveryEpoch", "RunCSVLogger", "finish_loggers", "tensorboard_logger", "wandb_logger"]
 
 
 class RunCSVLogger(Logger):
@@ -164,6 +166,30 @@ def wandb_logger(run_dir: str, project: str, offline: bool = True, entity: str |
                        config=lineage_tags(folder.read()))
 
 
+class LogEveryEpoch(Callback):
+    """Every epoch logs its training metrics at least once. Lightning logs them every `log_every_n_steps`
+    optimizer steps of the whole run, so a run with fewer steps than that (or with shorter epochs between
+    two logging steps) logged no `train/*` value and showed no training curve, in MLflow as in metrics.csv:
+    at the start of training the interval is shortened to the steps of one epoch (and to `max_steps`) where
+    it is longer. Lightning's warning about the short epoch, which this answers, is left out."""
+
+    def setup(self, trainer, pl_module, stage: str) -> None:
+        import warnings
+
+        warnings.filterwarnings("ignore", message=r"The number of training batches \(\d+\) is smaller than the "
+                                                  r"logging interval")
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        every = trainer.log_every_n_steps
+        if not every:  # 0: the user asked for no step logging
+            return
+        steps = trainer.max_steps if trainer.max_steps > 0 else every
+        batches = trainer.num_training_batches  # inf for a loader without a length
+        if batches != float("inf"):
+            steps = min(steps, int(batches) // max(1, trainer.accumulate_grad_batches))
+        trainer.log_every_n_steps = max(1, min(every, steps))
+
+
 def _numeric(metrics: dict) -> dict[str, float]:
     return {k: float(v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
 
@@ -184,9 +210,13 @@ def finish_loggers(loggers: list, record: dict, metrics: dict, step: int, final:
             logger.log_metrics(numeric, step=step)
         logger.save()
         if isinstance(logger, MLFlowLogger):
-            for key, value in tags.items():
-                logger.experiment.set_tag(logger.run_id, key, value)
-            finish_training(logger, record, Path(record["run_dir"]))
+            def finish(logger=logger) -> None:
+                for key, value in tags.items():
+                    logger.experiment.set_tag(logger.run_id, key, value)
+                finish_training(logger, record, Path(record["run_dir"]))
+
+            # a guarded logger (samp.runs.tracker_guard) turns itself off instead of failing the finished run
+            logger.guarded("logging tags and files", finish) if hasattr(logger, "guarded") else finish()
         elif isinstance(logger, WandbLogger):
             logger.experiment.config.update(tags, allow_val_change=True)
         logger.finalize("success")

@@ -115,8 +115,8 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
     from samp.runs.console import quiet_lightning, trainer_console
     from samp.runs.distributed import is_rank_zero
     from samp.runs.folder import Terminated
-    from samp.runs.loggers import finish_loggers
-    from samp.runs.tracking import training_logger
+    from samp.runs.loggers import LogEveryEpoch, finish_loggers
+    from samp.runs.tracker_guard import start_tracking
     from samp.train.after_fit import after_fit
     from samp.train.prerequisites import prepare
 
@@ -158,12 +158,12 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
             system = instantiate(cfg.system)
             callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
             loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
-            tracker = training_logger(cfg, folder) if rank_zero else None  # MLflow, unless tracking is off
+            tracker = start_tracking(cfg, folder) if rank_zero else None  # MLflow, unless tracking is off (or fails)
             loggers += [tracker] if tracker is not None else []
             console, progress = trainer_console(cfg.trainer)  # a progress bar on a terminal, else lines
             quiet_lightning()  # before the Trainer, which logs its tip when it is made
-            trainer = instantiate(cfg.trainer, callbacks=callbacks + progress, logger=loggers or False,
-                                  default_root_dir=folder.path, **console)
+            trainer = instantiate(cfg.trainer, callbacks=callbacks + progress + [LogEveryEpoch()],
+                                  logger=loggers or False, default_root_dir=folder.path, **console)
             start = time.perf_counter()
             with _safe_resume(ckpt, cfg):
                 trainer.fit(system, datamodule=datamodule, ckpt_path=str(ckpt) if ckpt else None,

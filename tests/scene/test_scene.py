@@ -11,10 +11,11 @@ from samp.scene import Box, Cylinder, MeshObstacle, Pose, Scene, Sphere, availab
 from samp.scene.registry import BASE_CLEARANCE, REACH
 
 GENERATORS = ["blocks", "cabinet", "shelf", "tabletop"]
+BROAD = ["around", "clutter", "cubbies", "walls"]  # tests/scene/test_generators_broad.py
 
 
 def test_all_generators_are_configured():
-    assert available_generators() == GENERATORS
+    assert available_generators() == sorted(GENERATORS + BROAD)
 
 
 def _mixed_scene() -> Scene:
@@ -79,7 +80,8 @@ def test_generator_parameters_change_the_scene():
 
 
 def test_unknown_generator_lists_available():
-    with pytest.raises(ValueError, match=r"unknown scene generator 'forest'; available: blocks, cabinet, shelf, tabletop"):
+    with pytest.raises(ValueError, match=r"unknown scene generator 'forest'; available: around, blocks, cabinet, clutter, "
+                       r"cubbies, shelf, tabletop, walls"):
         generate_scene("forest")
 
 

@@ -130,9 +130,12 @@ def _episode(result, index: int, problem, purpose: str) -> tuple[dict, dict]:
 
 
 def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tuple[int, int], purpose: str, tick,
-                   where: str, detour_share: float, stages: dict) -> tuple[list[dict], list[dict], list[np.ndarray]]:
-    """Sample `count` problems from the seed stream keys[0] and plan each (seed stream keys[1]) ->
-    (episode records, wall-clock times, (T, n) trajectories of the solved ones)."""
+                   where: str, detour_share: float, stages: dict,
+                   given: list | None = None) -> tuple[list[dict], list[dict], list[np.ndarray]]:
+    """Sample `count` problems from the seed stream keys[0] (or take the `given` problems of the scene's file,
+    `samp.data.given_problems`) and plan each (seed stream keys[1]) -> (episode records, wall-clock times,
+    (T, n) trajectories of the solved ones)."""
+    from samp.data.given_problems import given_problems
     from samp.expert.planner import PlanResult, derive_seed
     from samp.expert.problems import sample_problems
 
@@ -140,9 +143,14 @@ def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tupl
         return [], [], []
     t0 = time.perf_counter()
     try:
-        problems = sample_problems(robot, scene, count, derive_seed(seed, keys[0]), cfg,
-                                   world=getattr(planner, "world", None), detour_share=detour_share)
+        if given is not None:
+            problems = given_problems(robot, planner.world, given, cfg)
+        else:
+            problems = sample_problems(robot, scene, count, derive_seed(seed, keys[0]), cfg,
+                                       world=getattr(planner, "world", None), detour_share=detour_share)
     except ValueError as err:
+        if given is not None:
+            raise GenerationError(f"{where}: {err}") from None
         raise GenerationError(f"{where}: the scene cannot host valid planning problems: {err}. Change the "
                               "spec's generators or generator_overrides, or lower the expert's clearance") from None
     stages["problems"] += time.perf_counter() - t0
@@ -162,6 +170,15 @@ def _plan_problems(robot, scene, planner, cfg, count: int, seed: int, keys: tupl
     return episodes, timings, trajectories
 
 
+def _given(job: SceneJob) -> list | None:
+    """The problems a file scene's file gives, when the job takes them (`problems_from_files`); else None."""
+    if not job.file_problems:
+        return None
+    from samp.scene.files import file_problems, resolve_scene_file
+
+    return file_problems(resolve_scene_file(job.scene_file))
+
+
 def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
     """Generate one scene file into `out_dir`; returns its sidecar record. Threads are pinned to one so
     results do not depend on the number of workers."""
@@ -177,7 +194,8 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
     tick = tick or (lambda: _TICKS.put(1) if _TICKS is not None else None)
     try:
         robot = _robot(spec.robot)
-        where = f"dataset spec {spec.name!r}, scene {job.index} (generator {job.generator!r}, seed {job.seed})"
+        where = (f"dataset spec {spec.name!r}, scene {job.index} (generator {job.generator!r}, seed {job.seed}"
+                 + (f", {job.scene_file})" if job.scene_file else ")"))
         try:
             scene = (spec.file_scene(job.scene_file) if job.scene_file else
                      scene_from_config(spec.generator_config(job.generator), job.seed))
@@ -192,7 +210,7 @@ def run_scene(spec_dict: dict, job: SceneJob, out_dir: str, tick=None) -> dict:
                 tick, where, spec.detour_share, stages)
             eval_episodes, eval_timings, solutions = _plan_problems(
                 robot, scene, planner, cfg, job.eval_problems, job.seed, (EVAL_PROBLEMS, EVAL_PLANS), "evaluation",
-                tick, where, spec.detour_share, stages)
+                tick, where, spec.detour_share, stages, given=_given(job))
         sidecar = {"scene_index": job.index, "name": scene.name, "generator": job.generator, "seed": job.seed,
                    "split": job.split, "content_hash": scene.content_hash(), "file": job.file,
                    "robot_asset_hash": robot.asset_hash,  # so the merge need not load the robot

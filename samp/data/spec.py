@@ -8,9 +8,13 @@ the expert config, the share of problems drawn to need a detour (`detour_share`,
 ordered train, then val, then test; scene i uses generator `generators[i % len(generators)]` and seed
 `derive_seed(seed, namespace_key(scene_namespace), i)`, so two specs share scenes only when they share
 seed and namespace (by default the spec's name). Test scenes get no demonstrations: nothing of them can
-reach training. `scene_files` adds scenes read from files (samp's scene JSON/YAML or a cell URDF,
-`samp.scene.files`) to each split; they come after the generated scenes, in the order listed, and the
-resolved spec carries each file's scene content hash, so editing a file gives another dataset.
+reach training. `scene_files` adds scenes read from files (samp's scene JSON/YAML, a cell URDF, a cuRobo-style
+world or a problem set, `samp.scene.files`) to each split; they come after the generated scenes, in the order
+listed. An entry may be a folder or a glob, expanded in sorted order (a problem set expands to one scene per
+distinct obstacle set); the resolved spec carries the expansion and each scene's content hash, so adding,
+removing or editing a file gives another dataset. With `problems_from_files`, the test split's file scenes
+take the problems their files give (a problem set's starts and goals, hashed into the spec too) instead of
+drawing `eval_problems_per_scene` from the sampler.
 `config_hash` is sha256 over the resolved spec, including the full expert config and each
 generator's parameters, so a change anywhere gives a different hash.
 """
@@ -68,11 +72,12 @@ class DatasetSpec:
     resolutions: list[int] = field(default_factory=lambda: [40])  # anchor grids stored per scene (n_e)
     expert: str = "default"  # a name in conf/expert/ or a YAML path
     expert_overrides: dict[str, Any] = field(default_factory=dict)  # nested keys of the expert config
-    scene_files: dict[str, list[str]] = field(default_factory=dict)  # split -> scene files, after the generated
+    scene_files: dict[str, list[str]] = field(default_factory=dict)  # split -> scene files, folders or globs
+    problems_from_files: bool = False  # test file scenes: the files' own problems, not the sampler's
 
     @property
     def num_scenes(self) -> int:
-        return self.train_scenes + self.val_scenes + self.test_scenes + sum(map(len, self.scene_files.values()))
+        return self.train_scenes + self.val_scenes + self.test_scenes + sum(map(len, self.file_refs().values()))
 
     @property
     def namespace(self) -> str:
@@ -96,15 +101,29 @@ class DatasetSpec:
         out["generator_configs"] = {g: self.generator_config(g) for g in self.generators}
         if not out["detour_share"]:  # the default: left out, so specs from before the key keep their hash (and
             del out["detour_share"]  # their datasets, e.g. the standing benchmark, are found, not regenerated)
-        if any(out["scene_files"].values()):  # likewise: only specs that name scene files carry the key
+        if not out["problems_from_files"]:  # likewise: the default is left out
+            del out["problems_from_files"]
+        refs = self.file_refs()
+        if any(refs.values()):  # likewise: only specs that name scene files carry the key
             out["scene_file_hashes"] = {ref: self.file_scene(ref).content_hash()
-                                        for refs in self.scene_files.values() for ref in refs}
+                                        for split in refs for ref in refs[split]}
+            if refs != {k: list(v) for k, v in self.scene_files.items()}:  # folders, globs or problem sets expanded
+                out["scene_file_expansion"] = refs
+            if self.problems_from_files:  # the given starts and goals are part of the benchmark
+                out["scene_file_problems"] = {ref: _problems_hash(ref) for ref in refs.get("test", [])}
         else:
             del out["scene_files"]
         return out
 
+    def file_refs(self) -> dict[str, list[str]]:
+        """split -> one reference per file scene: `scene_files` with folders, globs and problem sets expanded
+        (`samp.scene.files.scene_refs`)."""
+        from samp.scene.files import scene_refs
+
+        return {split: [r for ref in refs for r in scene_refs(ref)] for split, refs in self.scene_files.items()}
+
     def file_scene(self, ref: str):
-        """The scene of one `scene_files` entry (samp.scene.files)."""
+        """The scene of one expanded `scene_files` reference (samp.scene.files)."""
         from samp.scene.files import load_scene_file, resolve_scene_file
 
         return load_scene_file(resolve_scene_file(ref))
@@ -119,11 +138,14 @@ class DatasetSpec:
         jobs = [SceneJob(i, self.generators[i % len(self.generators)], derive_seed(self.seed, key, i), split,
                          0 if split == "test" else self.trajectories_per_scene, self.eval_problems_per_scene)
                 for i, split in enumerate(splits)]
-        files = [(split, ref) for split in SPLIT_ORDER for ref in self.scene_files.get(split, [])]
+        refs = self.file_refs()
+        files = [(split, ref) for split in SPLIT_ORDER for ref in refs.get(split, [])]
         for i, (split, ref) in enumerate(files, start=len(jobs)):
+            given = self.problems_from_files and split == "test"
             jobs.append(SceneJob(i, FILE_GENERATOR, derive_seed(self.seed, key, i), split,
-                                 0 if split == "test" else self.trajectories_per_scene, self.eval_problems_per_scene,
-                                 scene_file=ref))
+                                 0 if split == "test" else self.trajectories_per_scene,
+                                 _file_problem_count(ref) if given else self.eval_problems_per_scene,
+                                 scene_file=ref, file_problems=given))
         return jobs
 
 
@@ -138,6 +160,7 @@ class SceneJob:
     trajectories: int  # expert demonstrations to plan (0 in a test scene)
     eval_problems: int  # evaluation problems to plan, stored apart from the demonstrations
     scene_file: str | None = None  # the scene's file (`generator` is then "file"); None: drawn by `generator`
+    file_problems: bool = False  # its evaluation problems are those its file gives (`problems_from_files`)
 
     @property
     def file(self) -> str:
@@ -236,17 +259,27 @@ def _check(spec: DatasetSpec) -> None:
     stray_splits = sorted(set(spec.scene_files) - set(SPLIT_ORDER))
     require(not stray_splits, f"scene_files has splits {stray_splits}; valid: {list(SPLIT_ORDER)}")
     hashes = []  # each file scene read once here
-    for split, refs in spec.scene_files.items():
-        require(len(set(refs)) == len(refs), f"scene_files.{split} lists a file twice: {refs}")
-        for ref in refs:
+    try:
+        refs = spec.file_refs()
+    except (ValueError, FileNotFoundError) as err:
+        require(False, f"scene_files: {err}")
+    for split, expanded in refs.items():
+        require(len(set(expanded)) == len(expanded), f"scene_files.{split} lists a file twice: {expanded}")
+        for ref in expanded:
             try:
                 hashes.append(spec.file_scene(ref).content_hash())
+                given = spec.problems_from_files and split == "test" and _file_problem_count(ref)
             except (ValueError, FileNotFoundError) as err:
                 require(False, f"scene_files.{split}: {err}")
+            require(given or split != "test" or not spec.problems_from_files,
+                    f"problems_from_files: scene_files.test: {ref} gives no problems of its own (only a problem set "
+                    "has starts and goals); list it without problems_from_files, or in another spec")
     require(len(set(hashes)) == len(hashes), "scene_files names the same scene twice (two files with one geometry)")
-    require(spec.trajectories_per_scene >= 1 or not any(spec.scene_files.get(s) for s in ("train", "val")),
+    require(spec.trajectories_per_scene >= 1 or not any(refs.get(s) for s in ("train", "val")),
             f"trajectories_per_scene must be >= 1 when scene_files has train or val scenes, got "
             f"{spec.trajectories_per_scene}")
+    require(not spec.problems_from_files or refs.get("test"),
+            "problems_from_files takes the problems of the test split's scene files, but scene_files.test is empty")
     unknown = sorted(set(spec.generators) - set(available_generators()))
     require(not unknown, f"unknown scene generators {unknown}; available: {available_generators()}")
     stray = sorted(set(spec.generator_overrides) - set(spec.generators))
@@ -255,6 +288,23 @@ def _check(spec: DatasetSpec) -> None:
             f"resolutions must list anchor counts per axis in [2, {N_E_MAX}], got {spec.resolutions}")
     require(len(set(spec.resolutions)) == len(spec.resolutions), f"resolutions has duplicates: {spec.resolutions}")
     spec.expert_config()  # raises with the expert config's own message
+
+
+def _file_problem_count(ref: str) -> int:
+    from samp.scene.files import file_problems, resolve_scene_file
+
+    return len(file_problems(resolve_scene_file(ref)))
+
+
+def _problems_hash(ref: str) -> str:
+    """sha256 of the starts and goals a scene file gives, as stored (float64 bytes)."""
+    from samp.scene.files import file_problems, resolve_scene_file
+
+    h = hashlib.sha256()
+    for p in file_problems(resolve_scene_file(ref)):
+        h.update(f"{p.where} {p.goals.shape}".encode())
+        h.update(p.start.astype("<f8").tobytes() + p.goals.astype("<f8").tobytes())
+    return h.hexdigest()
 
 
 def _plain(name) -> bool:

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "samp"
 
 # Bottom to top. Modules of one layer may import each other; nothing imports a layer above its own.
 LAYERS = [
-    {"names", "paths", "config_overlay", "yaml_files", "meshes", "cli", "provenance", "device", "integrity", "console", "remote", "tracking", "__init__"},  # base modules, no samp imports of their own but these
+    {"names", "paths", "config_overlay", "yaml_files", "meshes", "cli", "provenance", "device", "integrity", "console", "remote", "tracking", "tracking_faults", "__init__"},  # base modules, no samp imports of their own but these
     {"robot", "scene"},
     {"sim", "viz"},
     {"expert", "data", "perception"},

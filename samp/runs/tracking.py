@@ -30,9 +30,8 @@ def training_logger(cfg, folder):
     """A Lightning MLFlowLogger for the training run in `folder` (None when tracking is off): params from its
     resolved config, tags from its lineage, a child of its sweep's run when it is a sweep member, and the same
     MLflow run (in the store it was started in, when that store is here) when the folder is resumed. Rank 0 only."""
-    from pytorch_lightning.loggers import MLFlowLogger
-
     from samp.runs.lineage import flatten, lineage_tags
+    from samp.runs.tracker_guard import GuardedMLFlowLogger
 
     configured = resolve_uri(cfg.tracking.uri, cfg.paths.runs_dir)
     if configured is None:  # off wins, a resumed run's store included
@@ -47,8 +46,8 @@ def training_logger(cfg, folder):
     tags = lineage_tags(record)
     if sweep and not previous:
         tags["mlflow.parentRunId"] = sweep_parent(sweep["dir"], uri, experiment)
-    logger = MLFlowLogger(experiment_name=experiment, run_name=_run_name(folder.path, sweep), tracking_uri=uri,
-                          tags=tags, run_id=previous[1] if previous else None)
+    logger = GuardedMLFlowLogger(experiment_name=experiment, run_name=_run_name(folder.path, sweep), tracking_uri=uri,
+                                 tags=tags, run_id=previous[1] if previous else None, run_dir=folder.path)
     if not previous:  # MLflow params never change: a resumed run keeps those of its first start
         logger.log_hyperparams(flatten(record.get("config") or {}))
     folder.update(loggers={**(record.get("loggers") or {}), "mlflow": {

@@ -213,6 +213,17 @@ def test_counts_of_one_are_singular(tmp_path, capsys):
     assert "  1 scene (1 train, 0 val, 0 test), 1 demonstration (1 problem failed), 1 evaluation problem (" in out, out
 
 
+def test_the_model_card_of_a_one_step_run_counts_in_the_singular(tmp_path):
+    from samp.runs.cards import model_card
+
+    folder = tmp_path / "tiny" / "2026-01-01_00-00-00"
+    folder.mkdir(parents=True)
+    (folder / "run.json").write_text(json.dumps({"experiment": "tiny", "seed": 0, "steps": 1, "epochs": 1,
+                                                 "status": "completed"}))
+    card = model_card(folder)
+    assert "- seed 0, 1 step, 1 epoch" in card, [line for line in card.splitlines() if "seed" in line]
+
+
 # ----------------------------------------------------------------- 5. make install behind a mirror
 FAKE_PIP = """#!/bin/sh
 # A venv's python for `make install`: records each pip call; torch is missing; a pip install of torch

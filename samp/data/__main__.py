@@ -142,6 +142,7 @@ def _ls(args: list[str]) -> None:
 
 
 def _show(args: list[str]) -> None:
+    from samp.console import plural
     from samp.data.registry import read_manifest, resolve_ref
 
     ref, opts = _parse(args, needs_ref=True)
@@ -153,7 +154,7 @@ def _show(args: list[str]) -> None:
         if key in config:
             config[key] = f"(resolved, {len(json.dumps(config[key]))} characters: see {folder / 'manifest.json'})"
     shown["config"] = config
-    shown["files"] = f"{len(m['files'])} files, {sum(f['size'] for f in m['files'].values()) / 1e6:.1f} MB"
+    shown["files"] = f"{plural(len(m['files']), 'file')}, {sum(f['size'] for f in m['files'].values()) / 1e6:.1f} MB"
     print(f"# {folder}")
     print(json.dumps(shown, indent=2, sort_keys=True))
 
@@ -227,6 +228,7 @@ IMPORT_KEYS = ("source", "name", "robot", "scene", "val", "resolutions", "eval_p
 
 def _import(args: list[str]) -> None:
     from samp.cli import parse_options
+    from samp.console import plural
     from samp.data.importing import ImportConfig, import_dataset
 
     _, opts, _ = parse_options(args, IMPORT_KEYS, lists=("source", "val", "resolutions", "columns"),
@@ -246,7 +248,7 @@ def _import(args: list[str]) -> None:
                          f"{cfg.eval_problems_per_scene}")
     folder, summary = import_dataset([Path(s) for s in opts["source"]], cfg, _root(opts),
                                      progress=str(opts.get("progress", "true")).lower() != "false")
-    print(f"imported {summary['kept']} of {summary['kept'] + summary['refused']} trajectories "
+    print(f"imported {summary['kept']} of {plural(summary['kept'] + summary['refused'], 'trajectory', 'trajectories')} "
           f"({summary['refused']} refused)")
     for reason in summary["reasons"]:
         print(f"  refused {reason}")

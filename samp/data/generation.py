@@ -296,14 +296,14 @@ def generate(spec: DatasetSpec | str | dict, shard: int | None = None, num_shard
 def _generate_locked(spec: DatasetSpec, shard: int | None, num_shards: int, workers: int, root: Path | None,
                      progress: bool, work: Path, label: str) -> Path | None:
     """`generate` under the generation lock of its shard (`samp.data.workfolder`)."""
-    from samp.console import Progress
+    from samp.console import Progress, plural
 
     jobs = [j for j in spec.scene_jobs() if shard is None or j.index % num_shards == shard]
     clear_stale(work, [j.file for j in jobs])  # before anything new is written: a full disk's leftovers go first
     write_json(work / "spec.json", spec.resolved(), shared=True)
     todo = unfinished(work, jobs, label)  # a damaged scene file is removed and planned again
     if len(todo) < len(jobs):
-        print(f"{label}: resuming, {len(jobs) - len(todo)} of {len(jobs)} scenes already done in {work}")
+        print(f"{label}: resuming, {len(jobs) - len(todo)} of {plural(len(jobs), 'scene')} already done in {work}")
     plans = sum(j.trajectories + j.eval_problems for j in todo)  # demonstrations and evaluation problems
     bar = Progress(plans, label, unit="plan", enabled=progress)  # a bar on a terminal, else a line now and then
     spec_dict = spec.resolved()
@@ -318,13 +318,13 @@ def _generate_locked(spec: DatasetSpec, shard: int | None, num_shards: int, work
     except KeyboardInterrupt:
         done = sum((work / j.file).is_file() for j in jobs)
         raise GenerationInterrupted(
-            f"{label}: interrupted; {done} of {len(jobs)} scenes are finished and kept in {work}; run the same "
+            f"{label}: interrupted; {done} of {plural(len(jobs), 'scene')} finished and kept in {work}; run the same "
             "command again to resume") from None
     finally:
         bar.close()
     missing = [j for j in spec.scene_jobs() if not (work / j.file).is_file()]
     if missing:
-        print(f"{label}: done; {len(missing)} scenes of other shards are not finished yet "
+        print(f"{label}: done; {plural(len(missing), 'scene')} of other shards not finished yet "
               f"(run `{paste('python -m samp.data merge', dataset=spec.name)}` when they are)")
         return None
     return merge(spec, root)  # a shard finishing at the same time may be merging: merge waits for it

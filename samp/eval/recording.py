@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from samp.console import plural
 from samp.eval.checks import exact_robot
 from samp.eval.problems import Problem
 
@@ -55,7 +56,7 @@ def _summary(problem: Problem, record: dict, index: int) -> str:
     return "\n".join([
         f"### rollout {index}: {'success' if record['success'][primary] else 'failure'} (within {primary})", "",
         f"- problem: `{problem.name or '-'}` ({problem.split}), scene {problem.scene.name}",
-        f"- planner: {record['planner']}, {record['steps']} steps, ended: {record['termination']}",
+        f"- planner: {record['planner']}, {plural(record['steps'], 'step')}, ended: {record['termination']}",
         f"- final error: {_fmt(record['position_error'], 4, 'm')}, {_fmt(record['orientation_error'], 1, 'deg')}",
         f"- collision: {collision}; self-collision: {record['self_collision']}; "
         f"joint limits: {record['joint_limit_violation']}",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from samp.console import plural
 from samp.names import EVAL_DIR, METRICS_MD, PLOTS_DIR, RUN_JSON
 
 __all__ = ["MODEL_CARD", "model_card", "write_model_card"]
@@ -34,7 +35,7 @@ def model_card(run_dir: Path) -> str:
         f"- robot SDF: artifact `{record.get('robot_sdf_artifact_id')}`", "",
         "## Config", "",
         f"- system: `{system.get('_target_', '?')}`; network settings: `{model}`",
-        f"- seed {record.get('seed')}, {record.get('steps')} steps, {record.get('epochs')} epochs"
+        f"- seed {record.get('seed')}, {plural(record.get('steps'), 'step')}, {plural(record.get('epochs'), 'epoch')}"
         + (f", {fit:.0f} s of fitting" if isinstance(fit, (int, float)) else ""),
         f"- overrides: `{' '.join(record.get('overrides') or []) or '(none)'}`",
         "- the full resolved config is `.hydra/config.yaml` (and `config` in run.json)", "",

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from samp.console import plural
 from samp.eval.metrics import wilson_interval
 from samp.eval.report import benchmark_refs
 from samp.names import EVAL_DIR, PLOTS_DIR, PROBLEMS_JSONL, TRAIN_PREFIX, VAL_PREFIX
@@ -139,7 +140,8 @@ def plot_outcomes(run: Run, out: Path) -> Path:
         ax.bar(xs, [b[0] for b in bars], width, yerr=[[b[1] for b in bars], [b[2] for b in bars]], capsize=2,
                label=name, color=PLANNER_COLORS.get(name, "tab:green"))
     counts = [sum(1 for v in hard.values() if v == h) for h in (False, True)]
-    ax.set_xticks(range(2), [f"straight line clear\n({counts[0]} problems)", f"straight line collides\n({counts[1]})"])
+    ax.set_xticks(range(2), [f"straight line clear\n({plural(counts[0], 'problem')})",
+                             f"straight line collides\n({counts[1]})"])
     ax.set(title="success against difficulty [%] (Wilson 95 %)", ylim=(0, 115))
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=7, ncol=len(planners), loc="upper center")

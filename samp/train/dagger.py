@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from samp.cli import paste
+from samp.console import plural
 
 __all__ = ["collect", "rollout_problems", "restarts", "stage"]
 
@@ -104,7 +105,8 @@ def collect(system, ds, per_scene: int, back: int, clean_share: float, seed: int
     problems = rollout_problems(ds, per_scene, rng, scenes)
     t0 = time.perf_counter()
     results = rollout(system.planner(), problems, RolloutConfig(), grid_source=dataset_grids(ds))
-    print(f"dagger: rolled out {len(problems)} problems of {len({p.scene_index for p in problems})} training scenes in "
+    scenes_used = len({p.scene_index for p in problems})
+    print(f"dagger: rolled out {plural(len(problems), 'problem')} of {plural(scenes_used, 'training scene')} in "
           f"{time.perf_counter() - t0:.0f} s", flush=True)
     robot = load_robot(ds.manifest["robot"]["name"], dtype=torch.float64)
     expert = ds.manifest["config"]["expert_config"]

@@ -127,6 +127,16 @@ def test_bad_sources_are_refused_clearly(tmp_path, scene_file):
     assert not any((tmp_path / "d").rglob("manifest.json")), "a refused import must publish nothing"
 
 
+def test_progress_is_not_drawn_into_a_redirected_log(tmp_path, scene_file, capfd):
+    """With progress on (the command's default) and stderr not a terminal, no bar frames (`\\r`) reach it."""
+    from samp.data.importing import import_dataset
+
+    np.savez(tmp_path / "demos.npz", joint_positions=_uneven_line(HOME, AWAY)[None], scene=np.array([scene_file]))
+    import_dataset([tmp_path / "demos.npz"], _config("redirected"), root=tmp_path / "datasets", progress=True)
+    err = capfd.readouterr().err
+    assert "\r" not in err and "import redirected" not in err, f"progress frames in a redirected stderr: {err!r}"
+
+
 @pytest.mark.slow
 def test_the_import_command_prints_its_summary(tmp_path, scene_file):
     """The documented command, in a folder of its own: kept and refused counted, the refusal explained."""

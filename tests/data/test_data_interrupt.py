@@ -99,7 +99,7 @@ def test_ctrl_c_stops_at_once_keeps_finished_scenes_and_exits_130(tmp_path):
     assert proc.returncode == 130, err[-2000:]
     # pybullet prints its build time when a worker imports it; everything else is samp's
     lines = [line for line in err.splitlines() if line.strip() and not line.startswith("pybullet build time")]
-    assert len(lines) == 1 and "interrupted;" in lines[0] and "scenes are finished and kept in" in lines[0], err
+    assert len(lines) == 1 and "interrupted;" in lines[0] and "finished and kept in" in lines[0], err
     assert "Traceback" not in err
     _until(lambda: _gone(workers), "end of the workers")
     kept = sorted(p.name for p in work.glob("scene_*.mcap"))

@@ -91,5 +91,5 @@ def call(what: str, uri: str, fn, *args, attempts: int | None = None, **kwargs):
 
 def warn(err: TrackerDown, folder=None) -> None:
     """The one line that says tracking is off for the rest of the run, and where the run is kept."""
-    kept = f"; the run folder {folder} keeps everything" if folder is not None else ""
+    kept = f"; {folder} keeps everything the tracker would have had" if folder is not None else ""
     print(f"warning: {err}; tracking is off for the rest of this run{kept}", file=sys.stderr, flush=True)

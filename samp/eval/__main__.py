@@ -203,9 +203,16 @@ def _evaluate(overrides: list[str]) -> Path:
                                dataset=None if ds is None else f"{ds.name}@{ds.id}", provenance=provenance)
     # into the run's own MLflow run, as a section named after `out` (samp.tracking)
     from samp.data.registry import datasets_root
+    from samp.paths import runs_root
+    from samp.tracking import resolve_uri
+    from samp.tracking_faults import TrackerDown, call, warn
 
-    track_evaluation(out, report, flat_report(report, report["planner"]), run_path=run.path if run else None,
-                     datasets_root=Path(cfg.root) if cfg.root else datasets_root())
+    try:  # a store that fails (corrupt, locked past MLflow's wait) costs the tracking, never the evaluation's files
+        call("logging the evaluation", str(resolve_uri(None, runs_root())), track_evaluation, out, report,
+             flat_report(report, report["planner"]), run_path=run.path if run else None,
+             datasets_root=Path(cfg.root) if cfg.root else datasets_root(), attempts=1)
+    except TrackerDown as err:
+        warn(err, out)
     return out
 
 

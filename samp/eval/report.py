@@ -117,8 +117,15 @@ def _group_rows(section: Section, hard: list[bool]) -> dict[str, list[int]]:
         rows[section.name + HARD] = [i for i, h in enumerate(hard) if h]
     if section.benchmark is not None:
         for i, p in enumerate(section.problems):
-            rows.setdefault(f"{section.name}_{p.scene.meta.get('generator', 'unknown')}", []).append(i)
+            rows.setdefault(f"{section.name}_{_kind(p.scene)}", []).append(i)
     return rows
+
+
+def _kind(scene) -> str:
+    """The kind of scene a benchmark's rows are grouped by: its generator, "file" for a scene read from a
+    file (samp.scene.files), else "unknown"."""
+    meta = scene.meta or {}
+    return meta.get("generator") or ("file" if meta.get("file") else "unknown")
 
 
 def _subset(group: str, section: str) -> str:

@@ -213,3 +213,16 @@ def test_benchmark_takes_a_name_a_list_or_null(value, names):
 def test_a_bad_benchmark_list_is_refused(value):
     with pytest.raises(ValueError, match="benchmark must be"):
         _config(benchmark=value)
+
+
+def test_benchmark_rows_are_grouped_by_generator_and_file_scenes_as_file(tmp_path):
+    """A benchmark's per-kind rows: a generated scene by its generator, a scene read from a file as "file"
+    (not "unknown"), through the scene files' own loader."""
+    from samp.eval.report import _kind
+    from samp.scene import generate_scene
+    from samp.scene.files import load_scene_file
+
+    world = tmp_path / "cell.yaml"
+    world.write_text("cuboid:\n  crate:\n    dims: [0.2, 0.2, 0.2]\n    pose: [0.5, 0.0, 0.3, 1, 0, 0, 0]\n")
+    assert _kind(generate_scene("shelf", seed=1)) == "shelf"
+    assert _kind(load_scene_file(world)) == "file"

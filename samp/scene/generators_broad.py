@@ -160,7 +160,7 @@ def walls(rng, *, mode="random", distance=(0.3, 0.45), angle=(-2.2, 2.2), wall_w
         W, H, d = rng.uniform(*wall_width), rng.uniform(*wall_height), rng.uniform(*distance)
         ww, wh = rng.uniform(*window_width), rng.uniform(*window_height)
         wz = min(rng.uniform(*window_z), H - wh - 0.05)
-        side = min((W - ww) / 2 - 0.05, window_offset)  # the window's centre stays this close to the bearing
+        side = max(0.0, min((W - ww) / 2 - 0.05, window_offset))  # the window's centre stays this near the bearing
         wy = rng.uniform(-side, side)
         boards = _wall_with_window("wall", W, H, t, ww, wh, wy, wz)
         # The target stands on a post just behind the window, centred in its height, so its pre-grasp point in
@@ -200,7 +200,8 @@ def _cage(rng, width, depth, height, bar, spacing, opening, roof_share, thicknes
     sides, bars with an opening in front, a roof plate in `roof_share` of the scenes; the target inside."""
     W, D, H = rng.uniform(*width), rng.uniform(*depth), rng.uniform(*height)
     op = min(rng.uniform(*opening), W - 0.1)
-    oy = rng.uniform(-(W - op) / 2 + 0.05, (W - op) / 2 - 0.05)
+    side = max(0.0, (W - op) / 2 - 0.05)  # clamped: W - op may fall short of 0.1 by a rounding
+    oy = rng.uniform(-side, side)
     parts = _bars("cage_front", (-D / 2, -W / 2), (-D / 2, W / 2), (0.0, H), bar, spacing, (oy - op / 2, oy + op / 2))
     sides = {"back": ((D / 2, -W / 2), (D / 2, W / 2)), "left": ((-D / 2, W / 2), (D / 2, W / 2)),
              "right": ((-D / 2, -W / 2), (D / 2, -W / 2))}

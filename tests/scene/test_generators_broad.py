@@ -103,8 +103,20 @@ def test_walls_and_cubbies_modes():
         assert all(o.name == "table" or o.name.startswith("cage_") for o in cage.obstacles)
         bars = [o for o in cage.obstacles if o.name.startswith("cage_front")]
         assert len(bars) >= 2 and all(0.01 <= o.size[0] <= 0.025 for o in bars), f"seed {seed}: front bars {bars}"
+    # An opening as wide as the cage allows (its width less 0.1 m) leaves no room to shift it sideways.
+    tight = generate_scene("cubbies", seed=0, mode="cage", cage_width=[0.4, 0.4], opening=[0.5, 0.5])
+    assert target_is_approachable(tight)
+    narrow = generate_scene("walls", seed=0, mode="window", wall_width=[0.5, 0.5], window_width=[0.4, 0.4])
+    assert base_is_clear(narrow) and target_is_approachable(narrow)
     with pytest.raises(ValueError, match="walls mode"):
         generate_scene("walls", seed=0, mode="maze")
+
+
+@pytest.mark.parametrize("name", BROAD)
+def test_a_hundred_seeds_each_give_a_scene(name):
+    """Every draw of a range must be well formed: a seed of a dataset once hit an empty range by a rounding."""
+    hashes = {generate_scene(name, seed=seed).content_hash() for seed in range(100)}
+    assert len(hashes) == 100, f"{name}: expected 100 distinct scenes from 100 seeds, got {len(hashes)}"
 
 
 @pytest.mark.parametrize("spec", ["cpu_broad", "bench_around", "bench_clutter", "bench_walls", "bench_cubbies"])

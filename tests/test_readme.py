@@ -242,6 +242,9 @@ STEPS: list[tuple[str, object]] = [
     ("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=confirm out=/tmp/confirm",
      Same("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=unseen out=/tmp/bench",
           "another benchmark spec by name (tests/data/test_data_detours.py checks it is bench_unseen's recipe)")),
+    ("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=worlds out=/tmp/worlds",  # scenes from world files
+     Run("python -m samp.eval run={run} splits=[] benchmark=worlds benchmark_problems=2 record=false out={tmp}/worlds",
+         ["worlds/metrics.json", "datasets/bench_worlds/*/manifest.json"], ["benchmark_file"])),
     ("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=hard out=/tmp/hard",
      Same("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=unseen out=/tmp/bench",
           "another benchmark spec by name (tests/data/test_data_detours.py checks bench_hard's spec, "
@@ -344,6 +347,9 @@ STEPS: list[tuple[str, object]] = [
      RunElsewhere("robot/test_robot_add.py", '"experiment=quickstart", "robot=toyarm", "datamodule.dataset=toyarm_smoke"')),
     ("python -m samp.scene show scene=tabletop seed=3 n_e=64",
      Run("python -m samp.scene show scene=tabletop seed=3 n_e=16", ["runs/scene/tabletop_3/scene.rrd"])),
+    ("python -m samp.scene show file=examples/worlds/cubby.yaml",
+     Run("python -m samp.scene show file=examples/worlds/cubby.yaml n_e=16", ["runs/scene/file_cubby/scene.rrd"],
+         ["from file cubby.yaml (world)"])),
     # The training entry point's own help and a composed config; a second demo run to compare with
     ("python -m samp.train --help", Run("python -m samp.train --help", prints=["experiment", "sweep"])),
     ("python -m samp.train experiment=quickstart --cfg job",

@@ -195,63 +195,75 @@ def _bars(prefix, start, end, height, bar, spacing, skip=None):
     return out
 
 
-def _cage(rng, width, depth, height, bar, spacing, opening, roof_share, thickness, target_size):
-    """A cage in its own frame (front face at x = -depth/2, floor at z = 0): bars or plates on the back and
-    sides, bars with an opening in front, a roof plate in `roof_share` of the scenes; the target inside."""
-    W, D, H = rng.uniform(*width), rng.uniform(*depth), rng.uniform(*height)
+def _cage(rng, size, bar, spacing, opening, roof, plinth, thickness, target_size):
+    """A cage of `size` (W, D, H) in its own frame (front face at x = -D/2, floor at z = 0): bars or plates on
+    the back and sides, bars with an opening in front, a roof plate if `roof`; the target inside on a plinth
+    `plinth` high, so that a hand reaching in level through the opening clears the table."""
+    W, D, H = size
     op = min(rng.uniform(*opening), W - 0.1)
     side = max(0.0, (W - op) / 2 - 0.05)  # clamped: W - op may fall short of 0.1 by a rounding
     oy = rng.uniform(-side, side)
     parts = _bars("cage_front", (-D / 2, -W / 2), (-D / 2, W / 2), (0.0, H), bar, spacing, (oy - op / 2, oy + op / 2))
     sides = {"back": ((D / 2, -W / 2), (D / 2, W / 2)), "left": ((-D / 2, W / 2), (D / 2, W / 2)),
              "right": ((-D / 2, -W / 2), (D / 2, -W / 2))}
-    for side, (a, b) in sides.items():
+    for name, (a, b) in sides.items():
         if rng.random() < 0.5:
-            parts += _bars(f"cage_{side}", a, b, (0.0, H), bar, spacing)
+            parts += _bars(f"cage_{name}", a, b, (0.0, H), bar, spacing)
         else:
             (xa, ya), (xb, yb) = a, b
-            size = (thickness, W, H) if side == "back" else (D, thickness, H)
-            parts.append(Box(f"cage_{side}_plate", size, Pose(((xa + xb) / 2, (ya + yb) / 2, H / 2))))
-    if rng.random() < roof_share:
+            plate = (thickness, W, H) if name == "back" else (D, thickness, H)
+            parts.append(Box(f"cage_{name}_plate", plate, Pose(((xa + xb) / 2, (ya + yb) / 2, H / 2))))
+    if roof:
         parts.append(Box("cage_roof", (D + bar, W + bar, thickness), Pose((0.0, 0.0, H + thickness / 2))))
     tx = rng.uniform(-D / 2 + 0.14, max(-D / 2 + 0.15, D / 2 - 0.08))
-    return parts, Box("target", tuple(target_size), Pose((tx, oy, target_size[2] / 2)))
+    parts.append(Box("cage_plinth", (0.08, 0.08, plinth), Pose((tx, oy, plinth / 2))))
+    return parts, Box("target", tuple(target_size), Pose((tx, oy, plinth + target_size[2] / 2)))
+
+
+def _grid(rng, cell, depth, rows, cols, elevation, max_height, target_floor, thickness, target_size):
+    """A grid of open boxes (cells of `cell` (width, height), `depth` deep) in its own frame (front face at
+    x = -depth/2), its bottom `elevation` above the table; the target in the front half of one cell whose
+    floor lies within `target_floor`."""
+    (cw, ch), D = cell, depth
+    R = max(1, min(_count(rng, rows), int((max_height - elevation) / ch)))
+    C = _count(rng, cols)
+    boards = [Box(b.name, b.size, Pose((b.pose.position[0], b.pose.position[1], b.pose.position[2] + elevation)))
+              for b in _panels("cubby", C * cw, D, R * ch, thickness, R, C)]
+    floor_z = elevation + thickness + np.arange(R) * (R * ch - thickness) / R  # (R,) tops of the cell floors
+    floors = np.flatnonzero((floor_z >= target_floor[0]) & (floor_z <= target_floor[1]))
+    if len(floors) == 0:  # no floor in range: the registry redraws a target it cannot approach or reach
+        floors = np.array([R - 1])
+    i, j = int(floors[rng.integers(len(floors))]), int(rng.integers(C))
+    y = -C * cw / 2 + (j + 0.5) * cw
+    return boards, Box("target", tuple(target_size), Pose((-D / 4, y, floor_z[i] + target_size[2] / 2)))
 
 
 def cubbies(rng, *, mode="random", distance=(0.35, 0.5), angle=(-2.4, 2.4), cell_width=(0.2, 0.3),
             cell_height=(0.18, 0.3), depth=(0.22, 0.35), rows=(2, 4), cols=(2, 4), elevation=(0.0, 0.35),
             max_height=1.15, target_floor=(0.1, 0.85), cage_width=(0.4, 0.6), cage_depth=(0.3, 0.45),
             cage_height=(0.35, 0.7), bar=(0.01, 0.025), bar_spacing=(0.07, 0.15), opening=(0.22, 0.35),
-            roof_share=0.5, thickness=0.02, target_size=(0.04, 0.04, 0.06), table_size=(2.0, 2.0)):
+            roof_share=0.5, plinth=(0.1, 0.2), thickness=0.02, target_size=(0.04, 0.04, 0.06),
+            table_size=(2.0, 2.0)):
     """A grid of open boxes facing the robot, possibly raised off the table (mounted), with the target in one
     of them (`mode: grid`), a cage of thin bars and plates with an opening in front and the target inside
     (`mode: cage`), or either at random (`random`). Either may stand at any bearing, beside or behind the base."""
     if mode not in ("grid", "cage", "random"):
         raise ValueError(f"cubbies mode must be 'grid', 'cage' or 'random', got {mode!r}")
     _check_ranges(distance=distance, cell_width=cell_width, cell_height=cell_height, depth=depth, rows=rows,
-                  cols=cols, elevation=elevation, target_floor=target_floor, cage_width=cage_width, cage_depth=cage_depth,
-                  cage_height=cage_height, bar=bar, bar_spacing=bar_spacing, opening=opening)
+                  cols=cols, elevation=elevation, target_floor=target_floor, cage_width=cage_width,
+                  cage_depth=cage_depth, cage_height=cage_height, bar=bar, bar_spacing=bar_spacing, opening=opening,
+                  plinth=plinth)
     mode = ("grid", "cage")[rng.integers(2)] if mode == "random" else mode
     yaw = rng.uniform(*angle)
     if mode == "grid":
-        cw, ch, D, lift = rng.uniform(*cell_width), rng.uniform(*cell_height), rng.uniform(*depth), rng.uniform(*elevation)
-        R = max(1, min(_count(rng, rows), int((max_height - lift) / ch)))
-        C = _count(rng, cols)
-        boards = _panels("cubby", C * cw, D, R * ch, thickness, R, C)
-        boards = [Box(b.name, b.size, Pose((b.pose.position[0], b.pose.position[1], b.pose.position[2] + lift)))
-                  for b in boards]
-        floor_z = lift + thickness + np.arange(R) * (R * ch - thickness) / R  # (R,) tops of the cell floors
-        floors = np.flatnonzero((floor_z >= target_floor[0]) & (floor_z <= target_floor[1]))
-        if len(floors) == 0:  # no floor in range: the registry redraws a target it cannot approach or reach
-            floors = np.array([R - 1])
-        i, j = int(floors[rng.integers(len(floors))]), int(rng.integers(C))
-        floor_z = floor_z[i]
-        target = Box("target", tuple(target_size), Pose((-D / 4, -C * cw / 2 + (j + 0.5) * cw, floor_z + target_size[2] / 2)))
-        parts = boards
+        D = rng.uniform(*depth)
+        cell = (rng.uniform(*cell_width), rng.uniform(*cell_height))
+        parts, target = _grid(rng, cell, D, rows, cols, rng.uniform(*elevation), max_height, target_floor,
+                              thickness, target_size)
     else:
-        D = rng.uniform(*cage_depth)
-        parts, target = _cage(rng, cage_width, (D, D), cage_height, rng.uniform(*bar), rng.uniform(*bar_spacing),
-                              opening, roof_share, thickness, target_size)
+        W, D, H = rng.uniform(*cage_width), rng.uniform(*cage_depth), rng.uniform(*cage_height)
+        parts, target = _cage(rng, (W, D, H), rng.uniform(*bar), rng.uniform(*bar_spacing), opening,
+                              rng.random() < roof_share, rng.uniform(*plinth), thickness, target_size)
     dist = rng.uniform(*distance) + D / 2  # `distance` is to the front face
     placed = _place([*parts, target], dist * np.cos(yaw), dist * np.sin(yaw), yaw)
     return [table(table_size, center=(0.0, 0.0)), *placed[:-1]], placed[-1]

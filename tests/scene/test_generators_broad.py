@@ -103,6 +103,8 @@ def test_walls_and_cubbies_modes():
         assert all(o.name == "table" or o.name.startswith("cage_") for o in cage.obstacles)
         bars = [o for o in cage.obstacles if o.name.startswith("cage_front")]
         assert len(bars) >= 2 and all(0.01 <= o.size[0] <= 0.025 for o in bars), f"seed {seed}: front bars {bars}"
+        plinth = next(o for o in cage.obstacles if o.name == "cage_plinth")
+        assert 0.1 <= plinth.size[2] <= 0.2 and abs(cage.target.pose.position[2] - plinth.size[2] - 0.03) < 1e-9
     # An opening as wide as the cage allows (its width less 0.1 m) leaves no room to shift it sideways.
     tight = generate_scene("cubbies", seed=0, mode="cage", cage_width=[0.4, 0.4], opening=[0.5, 0.5])
     assert target_is_approachable(tight)

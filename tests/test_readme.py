@@ -253,6 +253,8 @@ STEPS: list[tuple[str, object]] = [
      RunElsewhere("train/test_dagger_stage.py", '"dagger.rounds=1", "dagger.per_scene=3"')),
     ("python -m samp.train experiment=samp_cpu dagger.teacher=runs/samp_cpu/TIME",
      RunElsewhere("train/test_dagger_stage.py", 'f"dagger.teacher={staged[\'teacher\']}"')),
+    ("python -m samp.train.adapt from=runs/samp_cpu/TIME cells=my_cells/",
+     RunElsewhere("train/test_adapt.py", '"-m", "samp.train.adapt"')),
     ("python -m samp.eval run=runs/EXP/TIME splits=[] benchmark=hard stride=2 out=/tmp/stride2",
      Run(f"python -m samp.eval run={{run}} stride=2 out={{tmp}}/stride2 {EVAL}", ["stride2/metrics.json"])),
     ("python -m samp.eval run=runs/EXP/TIME check=8 out=/tmp/check",

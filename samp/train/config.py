@@ -44,6 +44,7 @@ class TrainSchema:
     tracking: Any = None
     run_dir: Any = None
     resume: Any = None
+    init_from: Any = None
     trust_checkpoint: bool = False
 
 

@@ -70,20 +70,37 @@ def restarts(result, check: dict, clean_share: float, back: int, rng: np.random.
 
 
 def scene_refs(ds) -> list[str]:
-    """`GENERATOR:SEED` of every scene of `ds`; ValueError when a scene is not generated (a file, an import)
-    or the generators' settings were overridden, which such a reference does not carry."""
+    """`GENERATOR:SEED` of every generated scene of `ds`, its scene file for one read from a file (`scene_files`);
+    ValueError when a scene is imported or the generators' settings were overridden, which such a reference
+    does not carry."""
     from samp.data.importing import generated_scene_ref
+    from samp.data.spec import FILE_GENERATOR
 
     infos = ds.manifest["scenes"]
-    if any(s.get("generator") in (None, "file", "import") for s in infos):
-        raise ValueError(f"dataset {ds.name}@{ds.id} has scenes that are not generated (scene files or imports); "
-                         "DAgger rounds name scenes GENERATOR:SEED and handle generated datasets only: set "
+    files = iter(_file_refs(ds.manifest["config"]))
+    if any(s.get("generator") in (None, "import") for s in infos):
+        raise ValueError(f"dataset {ds.name}@{ds.id} has imported scenes; DAgger rounds name scenes by their "
+                         "generator and seed or their scene file, and handle generated datasets only: set "
                          "dagger.rounds=0")
     if ds.manifest["config"].get("generator_overrides"):
         raise ValueError(f"dataset {ds.name}@{ds.id} overrides its generators' settings, which a GENERATOR:SEED "
                          "scene reference does not carry; DAgger rounds handle datasets of the generators' own "
                          "settings only: set dagger.rounds=0")
-    return [generated_scene_ref(s["generator"], s["seed"]) for s in infos]
+    refs = [next(files, None) if s["generator"] == FILE_GENERATOR else generated_scene_ref(s["generator"], s["seed"])
+            for s in infos]
+    if None in refs or next(files, None) is not None:
+        raise ValueError(f"dataset {ds.name}@{ds.id}: its manifest's scene files do not match its file scenes; "
+                         "regenerate it")
+    return refs
+
+
+def _file_refs(config: dict) -> list[str]:
+    """The scene files of a spec's file scenes, in scene order (`DatasetSpec.scene_jobs`: after the generated
+    scenes, split by split, folders and globs expanded as the spec's resolved config recorded them)."""
+    from samp.data.spec import SPLIT_ORDER
+
+    refs = config.get("scene_file_expansion") or config.get("scene_files") or {}
+    return [r for split in SPLIT_ORDER for r in refs.get(split, [])]
 
 
 def collect(system, ds, per_scene: int, back: int, clean_share: float, seed: int, scenes: list[int] | None = None,
@@ -154,9 +171,10 @@ def _key(payload) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def aggregate(teacher: Path, settings, root: Path, seed: int) -> str:
-    """One round from the trained run `teacher`: its aggregated dataset as `NAME@ID`, imported into `root`
-    (found there instead when the same teacher and settings made it before)."""
+def aggregate(teacher: Path, settings, root: Path, seed: int, dataset: str | None = None) -> str:
+    """One round from the trained run `teacher`: the aggregated dataset as `NAME@ID`, imported into `root`
+    (found there instead when the same teacher and settings made it before). The teacher is rolled out in the
+    training scenes of `dataset` (`NAME@ID`; None: of the teacher's own dataset)."""
     from samp.data import DatasetError, open_dataset
     from samp.data.importing import ImportConfig, import_dataset
     from samp.paths import file_sha256, find_checkpoint
@@ -164,10 +182,11 @@ def aggregate(teacher: Path, settings, root: Path, seed: int) -> str:
     from samp.runs import RunFolder
 
     system = load_system(teacher)
-    ds = open_dataset(system.binding.dataset_id, root)
+    ds = open_dataset(dataset or system.binding.dataset_id, root)
     refs = scene_refs(ds)
     # the teacher is rolled out where it was trained: the first `max_scenes` training scenes when it had that
-    max_scenes = ((RunFolder(teacher).read().get("config") or {}).get("datamodule") or {}).get("max_scenes")
+    max_scenes = None if dataset else \
+        ((RunFolder(teacher).read().get("config") or {}).get("datamodule") or {}).get("max_scenes")
     scenes = ds.scene_indices("train")[:max_scenes] if max_scenes else None
     rules = {"per_scene": int(settings.per_scene), "back": int(settings.back),
              "clean_share": float(settings.clean_share), "seed": int(seed), "max_scenes": max_scenes}
@@ -282,6 +301,9 @@ def stage(cfg, overrides: list[str]) -> None:
             print(f"dagger: round {rounds}: training its teacher first: "
                   f"`{paste('python -m samp.train', *teacher_overrides)}`", flush=True)
             teacher = train(teacher_overrides, paths=paths, dagger_key=key).path
-    cfg.datamodule.dataset = aggregate(teacher, settings, root, int(cfg.seed))
+    where = _dataset_ref(cfg) if settings.get("teacher") and rounds == 1 and settings.get("scenes") == "run" else None
+    if settings.get("scenes") not in (None, "teacher", "run"):
+        raise ValueError(f"dagger.scenes must be teacher or run, got {settings.scenes!r}")
+    cfg.datamodule.dataset = aggregate(teacher, settings, root, int(cfg.seed), where)
     cfg.dagger.teacher = str(teacher)
     print(f"dagger: round {rounds}: training on {cfg.datamodule.dataset}", flush=True)

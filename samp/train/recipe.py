@@ -11,7 +11,8 @@ root) with `.hydra/`, `run.json`, `metrics.csv`, `checkpoints/` and what the eva
 run of the MLflow tracking store (`samp.runs.tracking`; `tracking.uri`).
 `resume=RUN_DIR` continues a run in its own folder from its last checkpoint, with the overrides it was
 started with (new ones win) and its loggers continuing; `run_dir=DIR` puts a new run in a folder of your
-choice. `-m` / `sweep=NAME` hand the arguments to the Hydra multirun entry point (`samp.train.sweep`),
+choice; `init_from=RUN_DIR` starts a new run from the network weights of a trained policy run
+(`samp.train.init_from`). `-m` / `sweep=NAME` hand the arguments to the Hydra multirun entry point (`samp.train.sweep`),
 which calls `train` once per sweep member.
 """
 
@@ -133,6 +134,11 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
             cfg.resume = str(resume)
         cfg.paths.runs_dir = str(_repo_path(cfg.paths.runs_dir))
         cfg.paths.datasets_dir = str(_repo_path(cfg.paths.datasets_dir))
+        if cfg.get("init_from"):  # the from-run's network, so that its weights fit (samp.train.init_from)
+            from samp.train.init_from import recorded_model
+
+            cfg.init_from = str(_repo_path(cfg.init_from))
+            cfg.model = recorded_model(cfg.init_from)
         prepare(cfg, overrides)  # before this run's folder exists: a robot SDF or DAgger teacher is a run of its own
     folder, ckpt = _open_folder(cfg)
     with open_dict(cfg):
@@ -156,6 +162,13 @@ def _train(overrides: list[str], log, *, run_dir, resume, paths, **info):
             pl.seed_everything(int(cfg.seed), workers=True, verbose=False)
             datamodule = instantiate(cfg.datamodule)
             system = instantiate(cfg.system)
+            if cfg.get("init_from") and ckpt is None:  # a resumed run's weights come from its own checkpoint
+                from samp.train.init_from import load_initial_weights
+
+                lineage = load_initial_weights(system, cfg.init_from, _trust(cfg))
+                if rank_zero:
+                    folder.update(init_from=lineage)
+                    print(f"init_from: the network starts from {lineage['checkpoint']}", flush=True)
             callbacks = [instantiate(c) for c in (cfg.callbacks or {}).values()]
             loggers = [instantiate(c) for c in (cfg.logger or {}).values()]
             tracker = start_tracking(cfg, folder) if rank_zero else None  # MLflow, unless tracking is off (or fails)

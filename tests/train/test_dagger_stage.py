@@ -152,5 +152,9 @@ def test_settings_and_datasets_it_cannot_use_are_refused_before_a_teacher_is_tra
     assert not any(tmp_path.iterdir())
     files = SimpleNamespace(name="mine", id="abc", manifest={"scenes": [{"generator": "file", "seed": None}],
                                                               "config": {}})
-    with pytest.raises(ValueError, match="mine@abc has scenes that are not generated.*dagger.rounds=0"):
+    with pytest.raises(ValueError, match="mine@abc: its manifest's scene files do not match its file scenes"):
         scene_refs(files)
+    imported = SimpleNamespace(name="mine", id="abc", manifest={"scenes": [{"generator": "import", "seed": 0}],
+                                                                 "config": {}})
+    with pytest.raises(ValueError, match="mine@abc has imported scenes.*dagger.rounds=0"):
+        scene_refs(imported)

@@ -56,7 +56,7 @@ def test_the_run_trains_on_the_aggregated_dataset_its_teacher_made(staged):
     assert teacher["status"] == record["status"] == "completed"
     assert teacher["dataset_id"] == f"dg_tiny@{staged['base'].name}" and teacher["dagger_key"]
     assert not (staged["teacher"] / "eval").exists(), "the teacher is not evaluated: only the run is"
-    assert teacher["config"]["datamodule"]["max_scenes"] == 1 and "problems of 1 training scenes" in staged["stdout"]
+    assert teacher["config"]["datamodule"]["max_scenes"] == 1 and "problems of 1 training scene" in staged["stdout"]
     name, _, ident = record["dataset_id"].partition("@")
     assert name.startswith("dg_tiny_dagger_") and record["config"]["datamodule"]["dataset"] == record["dataset_id"]
     assert record["config"]["dagger"]["teacher"] == str(staged["teacher"])

@@ -558,7 +558,7 @@ def test_every_readme_command_works_where_it_says(tmp_path, monkeypatch):
     assert not changed, f"documented commands wrote into the repository: {changed[:20]}"
     written = sorted(p.name for p in tmp_path.iterdir())
     assert set(written) <= {"work", "runs", "datasets", "cache", "bench", "check", "noisy", "stride2", "recon", "recon1",
-                            "recon2", "path", "out", "cloud", "cloud2"}, written
+                            "recon2", "path", "out", "cloud", "cloud2", "worlds"}, written
     assert not any((tmp_path / "work").iterdir()), f"written into the working folder: {list((tmp_path / 'work').iterdir())}"
     # The NN-SDF run made under the name robot_sdf_panda after the hash grid's is not what the name means.
     from samp.train.prerequisites import resolve_robot_sdf

@@ -324,8 +324,8 @@ def _generate_locked(spec: DatasetSpec, shard: int | None, num_shards: int, work
         bar.close()
     missing = [j for j in spec.scene_jobs() if not (work / j.file).is_file()]
     if missing:
-        print(f"{label}: done; {plural(len(missing), 'scene')} of other shards not finished yet "
-              f"(run `{paste('python -m samp.data merge', dataset=spec.name)}` when they are)")
+        print(f"{label}: done; {plural(len(missing), 'scene')} of other shards {'is' if len(missing) == 1 else 'are'} "
+              f"not finished yet (run `{paste('python -m samp.data merge', dataset=spec.name)}` when they are)")
         return None
     return merge(spec, root)  # a shard finishing at the same time may be merging: merge waits for it
 

@@ -271,6 +271,8 @@ def stage(cfg, overrides: list[str]) -> None:
             raise ValueError(f"dagger.{key} must be >= {low}, got {settings[key]}")
     if not 0 <= float(settings.clean_share) <= 1:
         raise ValueError(f"dagger.clean_share must be in [0, 1], got {settings.clean_share}")
+    if settings.get("scenes") not in (None, "teacher", "run"):  # before a teacher is trained, not after
+        raise ValueError(f"dagger.scenes must be teacher or run, got {settings.scenes!r}")
     if cfg.datamodule.get("max_trajectories") is not None:
         raise ValueError("dagger.rounds cannot be combined with datamodule.max_trajectories (the first N training "
                          "trajectories of the aggregated dataset are other ones); use datamodule.max_scenes")
@@ -302,8 +304,6 @@ def stage(cfg, overrides: list[str]) -> None:
                   f"`{paste('python -m samp.train', *teacher_overrides)}`", flush=True)
             teacher = train(teacher_overrides, paths=paths, dagger_key=key).path
     where = _dataset_ref(cfg) if settings.get("teacher") and rounds == 1 and settings.get("scenes") == "run" else None
-    if settings.get("scenes") not in (None, "teacher", "run"):
-        raise ValueError(f"dagger.scenes must be teacher or run, got {settings.scenes!r}")
     cfg.datamodule.dataset = aggregate(teacher, settings, root, int(cfg.seed), where)
     cfg.dagger.teacher = str(teacher)
     print(f"dagger: round {rounds}: training on {cfg.datamodule.dataset}", flush=True)

@@ -146,7 +146,10 @@ def test_settings_and_datasets_it_cannot_use_are_refused_before_a_teacher_is_tra
                                                      "clean_share": 0.1}})
     with pytest.raises(ValueError, match="dagger.per_scene must be >= 1"):
         stage(cfg, [])
-    cfg.dagger.per_scene, cfg.datamodule.max_trajectories = 3, 10
+    cfg.dagger.per_scene, cfg.dagger.scenes = 3, "mine"
+    with pytest.raises(ValueError, match="dagger.scenes must be teacher or run, got 'mine'"):
+        stage(cfg, [])
+    cfg.dagger.scenes, cfg.datamodule.max_trajectories = "teacher", 10
     with pytest.raises(ValueError, match="cannot be combined with datamodule.max_trajectories"):
         stage(cfg, [])
     assert not any(tmp_path.iterdir())
